@@ -1,0 +1,129 @@
+//! How often does the pose prior make the body intersect itself?
+//!
+//! Sample `i` draws a body from the default adult [`ShapeRanges`] and a pose from the
+//! [`PosePrior`], both from seed `seed + i`, poses the body and runs the self-intersection
+//! test of `sim::body::intersect`.
+
+use std::collections::BTreeMap;
+
+use rayon::prelude::*;
+use sim::body::intersect::SelfIntersection;
+use sim::body::{BodyError, BodyModel, Family, PoseLibrary};
+
+use crate::sampling::{PosePrior, ShapeRanges, rng};
+
+/// Result of a prior check.
+#[derive(Debug, Clone)]
+pub struct PriorReport {
+    /// Seed of sample 0.
+    pub seed: u64,
+    /// Per family: (poses sampled, poses with self-intersection).
+    pub per_family: BTreeMap<Family, (usize, usize)>,
+    /// Seeds of the poses with self-intersection, with the segments that met first.
+    pub failures: Vec<(u64, String)>,
+}
+
+impl PriorReport {
+    /// Poses sampled.
+    pub fn samples(&self) -> usize {
+        self.per_family.values().map(|v| v.0).sum()
+    }
+
+    /// Poses with self-intersection.
+    pub fn intersecting(&self) -> usize {
+        self.per_family.values().map(|v| v.1).sum()
+    }
+
+    /// Share of poses with self-intersection.
+    pub fn share(&self) -> f64 {
+        self.intersecting() as f64 / self.samples().max(1) as f64
+    }
+
+    /// A plain-text table.
+    pub fn table(&self) -> String {
+        let mut s = String::from("family    poses  self-intersecting  share\n");
+        for (f, (n, k)) in &self.per_family {
+            s.push_str(&format!(
+                "{:<9} {:>5}  {:>17}  {:>5.2}%\n",
+                f.name(),
+                n,
+                k,
+                100.0 * *k as f64 / (*n).max(1) as f64
+            ));
+        }
+        s.push_str(&format!(
+            "{:<9} {:>5}  {:>17}  {:>5.2}%",
+            "all",
+            self.samples(),
+            self.intersecting(),
+            100.0 * self.share()
+        ));
+        if !self.failures.is_empty() {
+            let list: Vec<String> = self
+                .failures
+                .iter()
+                .take(10)
+                .map(|(s, w)| format!("random:{s} ({w})"))
+                .collect();
+            s.push_str(&format!("\nintersecting poses: {}", list.join(", ")));
+        }
+        s
+    }
+
+    /// The report as JSON.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "seed": self.seed,
+            "samples": self.samples(),
+            "intersecting": self.intersecting(),
+            "share": self.share(),
+            "per_family": self.per_family.iter().map(|(f, (n, k))| (f.name().to_string(), serde_json::json!({"samples": n, "intersecting": k}))).collect::<serde_json::Map<_, _>>(),
+            "failures": self.failures.iter().map(|(s, w)| serde_json::json!({"seed": s, "segments": w})).collect::<Vec<_>>(),
+        })
+    }
+}
+
+/// Samples `n` bodies and poses from seed `seed` on and counts self-intersections;
+/// `progress` is called once per pose (from any thread).
+pub fn check(
+    model: &BodyModel,
+    library: &PoseLibrary,
+    n: usize,
+    seed: u64,
+    progress: impl Fn() + Sync,
+) -> Result<PriorReport, BodyError> {
+    let prior = PosePrior::new(library.clone());
+    let test = SelfIntersection::new(model);
+    let ranges = ShapeRanges::default();
+    let results: Vec<(Family, Option<String>)> = (0..n as u64)
+        .into_par_iter()
+        .map(|i| {
+            let mut r = rng(seed + i);
+            let shape = ranges.sample(&mut r);
+            let sampled = prior.sample(&mut r);
+            let body = model.shape(&shape)?;
+            let posed = body.pose(&sampled.pose);
+            let hit = test
+                .find(&posed.vertices, 1)
+                .first()
+                .map(|c| format!("{:?}/{:?}", c.segments.0, c.segments.1));
+            progress();
+            Ok((sampled.family, hit))
+        })
+        .collect::<Result<_, BodyError>>()?;
+    let mut per_family: BTreeMap<Family, (usize, usize)> = BTreeMap::new();
+    let mut failures = Vec::new();
+    for (i, (f, hit)) in results.into_iter().enumerate() {
+        let e = per_family.entry(f).or_default();
+        e.0 += 1;
+        if let Some(w) = hit {
+            e.1 += 1;
+            failures.push((seed + i as u64, w));
+        }
+    }
+    Ok(PriorReport {
+        seed,
+        per_family,
+        failures,
+    })
+}

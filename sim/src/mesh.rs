@@ -1,0 +1,96 @@
+//! Triangle meshes: the one mesh type bodies, garments and drapes share.
+
+use glam::Vec3;
+use std::fmt::Write as _;
+
+/// An indexed triangle mesh in metres, Y up.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TriMesh {
+    /// Vertex positions (m).
+    pub vertices: Vec<Vec3>,
+    /// Counter-clockwise triangles (outward normals), indices into `vertices`.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl TriMesh {
+    /// A mesh from positions and triangles.
+    pub fn new(vertices: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Self {
+        Self {
+            vertices,
+            triangles,
+        }
+    }
+
+    /// Axis-aligned bounds `(min, max)`; `None` for an empty mesh.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        bounds(&self.vertices)
+    }
+
+    /// Area-weighted vertex normals (unit length; zero for unused vertices).
+    pub fn vertex_normals(&self) -> Vec<Vec3> {
+        vertex_normals(&self.vertices, &self.triangles)
+    }
+
+    /// The mesh as Wavefront OBJ text (`v` and `f` records, 1-based indices).
+    pub fn to_obj(&self, header: &str) -> String {
+        let mut s = String::with_capacity(self.vertices.len() * 40 + self.triangles.len() * 24);
+        for line in header.lines() {
+            let _ = writeln!(s, "# {line}");
+        }
+        for v in &self.vertices {
+            let _ = writeln!(s, "v {:.6} {:.6} {:.6}", v.x, v.y, v.z);
+        }
+        for t in &self.triangles {
+            let _ = writeln!(s, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+        }
+        s
+    }
+}
+
+/// Axis-aligned bounds of points; `None` if there are none.
+pub fn bounds(points: &[Vec3]) -> Option<(Vec3, Vec3)> {
+    let first = *points.first()?;
+    Some(
+        points
+            .iter()
+            .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
+    )
+}
+
+/// Area-weighted vertex normals of a triangle soup over `vertices`.
+pub fn vertex_normals(vertices: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut n = vec![Vec3::ZERO; vertices.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|i| vertices[i as usize]);
+        // The cross product's length is twice the area: area weighting for free.
+        let fnormal = (b - a).cross(c - a);
+        for &i in t {
+            n[i as usize] += fnormal;
+        }
+    }
+    for v in &mut n {
+        *v = v.normalize_or_zero();
+    }
+    n
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tetrahedron_normals_point_outwards() {
+        let m = TriMesh::new(
+            vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        );
+        let centre = Vec3::splat(0.25);
+        for (v, n) in m.vertices.iter().zip(m.vertex_normals()) {
+            assert!((*v - centre).dot(n) > 0.0);
+            assert!((n.length() - 1.0).abs() < 1e-6);
+        }
+        let obj = m.to_obj("test");
+        assert_eq!(obj.lines().filter(|l| l.starts_with("v ")).count(), 4);
+        assert!(obj.contains("f 2 3 4"));
+    }
+}

@@ -1,0 +1,37 @@
+//! Command-line definitions and dispatch.
+
+mod body;
+mod pose_spec;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+/// drape: cloth physics to training data to fast draping networks.
+#[derive(Debug, Parser)]
+#[command(name = "drape", version, about, long_about = None)]
+pub struct Cli {
+    /// Folder of the shipped assets (default: the `assets/` folder of this source tree).
+    #[arg(long, global = true, value_name = "DIR")]
+    pub assets: Option<PathBuf>,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The jobs.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Build a shaped, posed MakeHuman body: OBJ and PNG; import the body asset; check the
+    /// pose prior.
+    Body(body::BodyArgs),
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    let assets = cli
+        .assets
+        .unwrap_or_else(sim::body::asset::default_assets_dir);
+    match cli.command {
+        Command::Body(args) => body::run(args, &assets),
+    }
+}
