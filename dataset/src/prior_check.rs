@@ -1,16 +1,17 @@
 //! How often does the pose prior make the body intersect itself?
 //!
-//! Sample `i` draws a body from the default adult [`ShapeRanges`] and a pose from the
-//! [`PosePrior`], both from seed `seed + i`, poses the body and runs the self-intersection
-//! test of `sim::body::intersect`.
+//! Sample `i` draws the pose `random:{seed + i}` from the [`PosePrior`] (the same pose
+//! `drape body --pose random:{seed + i}` gives) and a body from the default adult
+//! [`ShapeRanges`] with [`shape_seed`]`(seed + i)`, poses the body and runs the
+//! self-intersection test of `sim::body::intersect`.
 
 use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use sim::body::intersect::SelfIntersection;
-use sim::body::{BodyError, BodyModel, Family, PoseLibrary};
+use sim::body::{BodyError, BodyModel, Family, PoseLibrary, ShapeParams};
 
-use crate::sampling::{PosePrior, ShapeRanges, rng};
+use crate::sampling::{PosePrior, ShapeRanges, rng, shape_seed};
 
 /// Result of a prior check.
 #[derive(Debug, Clone)]
@@ -19,8 +20,8 @@ pub struct PriorReport {
     pub seed: u64,
     /// Per family: (poses sampled, poses with self-intersection).
     pub per_family: BTreeMap<Family, (usize, usize)>,
-    /// Seeds of the poses with self-intersection, with the segments that met first.
-    pub failures: Vec<(u64, String)>,
+    /// Poses with self-intersection: pose seed, the body's shape, the segments that met.
+    pub failures: Vec<(u64, ShapeParams, String)>,
 }
 
 impl PriorReport {
@@ -63,7 +64,7 @@ impl PriorReport {
                 .failures
                 .iter()
                 .take(10)
-                .map(|(s, w)| format!("random:{s} ({w})"))
+                .map(|(s, _, w)| format!("random:{s} ({w})"))
                 .collect();
             s.push_str(&format!("\nintersecting poses: {}", list.join(", ")));
         }
@@ -78,7 +79,7 @@ impl PriorReport {
             "intersecting": self.intersecting(),
             "share": self.share(),
             "per_family": self.per_family.iter().map(|(f, (n, k))| (f.name().to_string(), serde_json::json!({"samples": n, "intersecting": k}))).collect::<serde_json::Map<_, _>>(),
-            "failures": self.failures.iter().map(|(s, w)| serde_json::json!({"seed": s, "segments": w})).collect::<Vec<_>>(),
+            "failures": self.failures.iter().map(|(s, p, w)| serde_json::json!({"pose": format!("random:{s}"), "shape": p.named().iter().map(|(n, v)| (n.to_string(), serde_json::json!(v))).collect::<serde_json::Map<_, _>>(), "segments": w})).collect::<Vec<_>>(),
         })
     }
 }
@@ -95,12 +96,11 @@ pub fn check(
     let prior = PosePrior::new(library.clone());
     let test = SelfIntersection::new(model);
     let ranges = ShapeRanges::default();
-    let results: Vec<(Family, Option<String>)> = (0..n as u64)
+    let results: Vec<(Family, ShapeParams, Option<String>)> = (0..n as u64)
         .into_par_iter()
         .map(|i| {
-            let mut r = rng(seed + i);
-            let shape = ranges.sample(&mut r);
-            let sampled = prior.sample(&mut r);
+            let sampled = prior.sample_seeded(seed + i);
+            let shape = ranges.sample(&mut rng(shape_seed(seed + i)));
             let body = model.shape(&shape)?;
             let posed = body.pose(&sampled.pose);
             let hit = test
@@ -108,17 +108,17 @@ pub fn check(
                 .first()
                 .map(|c| format!("{:?}/{:?}", c.segments.0, c.segments.1));
             progress();
-            Ok((sampled.family, hit))
+            Ok((sampled.family, shape, hit))
         })
         .collect::<Result<_, BodyError>>()?;
     let mut per_family: BTreeMap<Family, (usize, usize)> = BTreeMap::new();
     let mut failures = Vec::new();
-    for (i, (f, hit)) in results.into_iter().enumerate() {
+    for (i, (f, shape, hit)) in results.into_iter().enumerate() {
         let e = per_family.entry(f).or_default();
         e.0 += 1;
         if let Some(w) = hit {
             e.1 += 1;
-            failures.push((seed + i as u64, w));
+            failures.push((seed + i as u64, shape, w));
         }
     }
     Ok(PriorReport {

@@ -15,6 +15,12 @@ pub fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
 }
 
+/// Seed of the shape stream that goes with pose seed `seed`: a fixed odd-constant mix, so
+/// shapes and poses drawn for one sample are independent but both follow from one seed.
+pub fn shape_seed(seed: u64) -> u64 {
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x5348_4150_4553_4545
+}
+
 /// Ranges `[low, high]` of uniformly sampled shape parameters.
 ///
 /// The defaults sample adults (25 to 64 years) of moderate height: MakeHuman's height=1 is

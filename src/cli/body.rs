@@ -3,11 +3,11 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, bail};
+use anyhow::{Context as _, bail};
 use clap::{Args, Subcommand};
 use sim::body::{BodyModel, PoseLibrary, ShapeParams};
 
-use super::pose_spec;
+use super::{Context, pose_spec};
 
 /// `drape body`.
 #[derive(Debug, Args)]
@@ -110,41 +110,38 @@ enum BodyCommand {
     },
 }
 
-/// Loads the model and the built-in pose library.
-pub fn load(assets: &Path) -> anyhow::Result<(BodyModel, PoseLibrary)> {
-    let model = BodyModel::load_from_dir(assets)?;
-    let library = PoseLibrary::from_toml(
-        &model.skeleton,
-        sim::body::pose::LIBRARY_TOML,
-        &model.t_pose,
-    )?;
+/// Loads the model and the pose library (built-in unless --pose-library is given).
+pub fn load(ctx: &Context) -> anyhow::Result<(BodyModel, PoseLibrary)> {
+    let model = BodyModel::load_from_dir(&ctx.assets)?;
+    let text = match &ctx.pose_library {
+        Some(p) => std::fs::read_to_string(p).map_err(|source| sim::body::BodyError::Io {
+            path: p.clone(),
+            source,
+        })?,
+        None => sim::body::pose::LIBRARY_TOML.to_string(),
+    };
+    let library = PoseLibrary::from_toml(&model.skeleton, &text, &model.t_pose)?;
     Ok((model, library))
 }
 
 /// Runs `drape body`.
-pub fn run(args: BodyArgs, assets: &Path) -> anyhow::Result<()> {
+pub fn run(args: BodyArgs, ctx: &Context) -> anyhow::Result<()> {
     match args.command {
         Some(BodyCommand::Import {
             dir,
             wheel_sha256,
             out,
-        }) => import(&dir, &wheel_sha256, out.as_deref().unwrap_or(assets)),
+        }) => import(&dir, &wheel_sha256, out.as_deref().unwrap_or(&ctx.assets)),
         Some(BodyCommand::CheckPrior {
             samples,
             seed,
             report,
-        }) => check_prior(assets, samples, seed, report.as_deref()),
+        }) => check_prior(ctx, samples, seed, report.as_deref()),
         None => {
             let Some(output) = args.output else {
                 bail!("drape body needs an output file: -o body.obj (see drape body --help)");
             };
-            build(
-                &args.shape,
-                &args.pose,
-                &output,
-                args.png.as_deref(),
-                assets,
-            )
+            build(&args.shape, &args.pose, &output, args.png.as_deref(), ctx)
         }
     }
 }
@@ -154,10 +151,10 @@ fn build(
     pose: &str,
     output: &Path,
     png: Option<&Path>,
-    assets: &Path,
+    ctx: &Context,
 ) -> anyhow::Result<()> {
     let params = shape.params()?;
-    let (model, library) = load(assets)?;
+    let (model, library) = load(ctx)?;
     let shaped = model.shape(&params)?;
     let resolved = pose_spec::resolve(pose, &shaped, &library)?;
     let posed = shaped.pose(&resolved.pose);
@@ -290,12 +287,12 @@ fn provenance_markdown(model: &BodyModel, asset_sha256: &str, license: &str) -> 
 }
 
 fn check_prior(
-    assets: &Path,
+    ctx: &Context,
     samples: usize,
     seed: u64,
     report: Option<&Path>,
 ) -> anyhow::Result<()> {
-    let (model, library) = load(assets)?;
+    let (model, library) = load(ctx)?;
     let t0 = Instant::now();
     let bar = indicatif::ProgressBar::new(samples as u64).with_style(
         indicatif::ProgressStyle::with_template(

@@ -14,6 +14,9 @@ pub struct Cli {
     /// Folder of the shipped assets (default: the `assets/` folder of this source tree).
     #[arg(long, global = true, value_name = "DIR")]
     pub assets: Option<PathBuf>,
+    /// Pose library TOML to use instead of the built-in configs/poses/library.toml.
+    #[arg(long, global = true, value_name = "FILE.toml")]
+    pub pose_library: Option<PathBuf>,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -26,12 +29,24 @@ pub enum Command {
     Body(body::BodyArgs),
 }
 
+/// Options every command shares.
+#[derive(Debug)]
+pub struct Context {
+    /// The assets folder.
+    pub assets: PathBuf,
+    /// A pose library replacing the built-in one.
+    pub pose_library: Option<PathBuf>,
+}
+
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    let assets = cli
-        .assets
-        .unwrap_or_else(sim::body::asset::default_assets_dir);
+    let ctx = Context {
+        assets: cli
+            .assets
+            .unwrap_or_else(sim::body::asset::default_assets_dir),
+        pose_library: cli.pose_library,
+    };
     match cli.command {
-        Command::Body(args) => body::run(args, &assets),
+        Command::Body(args) => body::run(args, &ctx),
     }
 }
