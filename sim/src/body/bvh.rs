@@ -99,6 +99,9 @@ impl<'a> Tokens<'a> {
         Ok(t)
     }
     fn expect(&mut self, word: &str) -> Result<(), BodyError> {
+        if self.pos >= self.items.len() {
+            return Err(self.err(format!("expected {word}, found the end of the file")));
+        }
         let t = self.next()?;
         if t.eq_ignore_ascii_case(word) {
             Ok(())
