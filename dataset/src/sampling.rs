@@ -23,9 +23,10 @@ pub fn shape_seed(seed: u64) -> u64 {
 
 /// Ranges `[low, high]` of uniformly sampled shape parameters.
 ///
-/// The defaults sample adults (25 to 64 years) of moderate height: MakeHuman's height=1 is
-/// a 2.45 m giant whose body also loses relative heaviness, and bodies far outside the
-/// range a garment is made for say nothing about how it drapes.
+/// The defaults sample adults (25 to 64 years) of moderate height. MakeHuman's height axis
+/// is steep and lopsided (0.73 m per unit below 0.5, 1.44 m above; height=1 is a 2.45 m
+/// giant whose body also loses relative heaviness), so the default [0.35, 0.62] gives women
+/// of 1.48 to 1.76 m and men of 1.62 to 1.90 m (measured on the shipped asset).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ShapeRanges {
@@ -37,7 +38,7 @@ pub struct ShapeRanges {
     pub muscle: [f32; 2],
     /// Weight range (default [0.25, 0.75]).
     pub weight: [f32; 2],
-    /// Height range (default [0.3, 0.7]).
+    /// Height range (default [0.35, 0.62]).
     pub height: [f32; 2],
     /// Proportions range (default [0.3, 0.7]).
     pub proportions: [f32; 2],
@@ -50,7 +51,7 @@ impl Default for ShapeRanges {
             age: [0.5, 0.8],
             muscle: [0.25, 0.75],
             weight: [0.25, 0.75],
-            height: [0.3, 0.7],
+            height: [0.35, 0.62],
             proportions: [0.3, 0.7],
         }
     }

@@ -1,0 +1,194 @@
+//! End-to-end tests of the `drape` program: outputs, and bad input giving a clear error,
+//! a non-zero exit status and no files.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn drape(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_drape"))
+        .args(args)
+        .output()
+        .expect("drape runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Runs a command that must fail: non-zero status, an error naming `expect`, and an empty
+/// output folder.
+fn fails(dir: &Path, args: &[&str], expect: &str) {
+    let o = drape(args);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "{args:?} succeeded");
+    assert!(
+        err.contains(expect),
+        "{args:?}: error {err:?} does not mention {expect:?}"
+    );
+    let left: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(left.is_empty(), "{args:?} left files behind: {left:?}");
+}
+
+#[test]
+fn body_writes_obj_and_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("body.obj");
+    let png = dir.path().join("body.png");
+    let o = drape(&[
+        "body",
+        "--gender",
+        "1",
+        "--height",
+        "0.6",
+        "--pose",
+        "t-pose",
+        "-o",
+        obj.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&obj).unwrap();
+    assert_eq!(text.lines().filter(|l| l.starts_with("v ")).count(), 13_380);
+    assert_eq!(text.lines().filter(|l| l.starts_with("f ")).count(), 26_756);
+    // A tall man in a T-pose: about 1.8 m tall and even wider than that.
+    let ys: Vec<f32> = text
+        .lines()
+        .filter(|l| l.starts_with("v "))
+        .map(|l| l.split(' ').nth(2).unwrap().parse().unwrap())
+        .collect();
+    let xs: Vec<f32> = text
+        .lines()
+        .filter(|l| l.starts_with("v "))
+        .map(|l| l.split(' ').nth(1).unwrap().parse().unwrap())
+        .collect();
+    let span = |v: &[f32]| {
+        v.iter().cloned().fold(f32::MIN, f32::max) - v.iter().cloned().fold(f32::MAX, f32::min)
+    };
+    assert!((1.75..1.95).contains(&span(&ys)), "height {}", span(&ys));
+    assert!(span(&xs) > 1.6, "arm span {}", span(&xs));
+    let png_bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&png_bytes[1..4], b"PNG");
+}
+
+#[test]
+fn random_poses_are_reproducible_and_labelled() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a.obj");
+    let b = dir.path().join("b.obj");
+    for p in [&a, &b] {
+        let o = drape(&["body", "--pose", "random:42", "-o", p.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let out = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(
+            ["walking", "dance", "yoga"].iter().any(|f| out.contains(f)),
+            "no family label in {out:?}"
+        );
+    }
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+}
+
+#[test]
+fn bad_parameters_are_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.obj");
+    let out = out.to_str().unwrap();
+    fails(
+        dir.path(),
+        &["body", "--weight", "1.5", "-o", out],
+        "weight",
+    );
+    fails(dir.path(), &["body", "--age", "-0.1", "-o", out], "age");
+    fails(
+        dir.path(),
+        &[
+            "body",
+            "--african",
+            "0",
+            "--asian",
+            "0",
+            "--caucasian",
+            "0",
+            "-o",
+            out,
+        ],
+        "race",
+    );
+    fails(
+        dir.path(),
+        &["body", "--muscle", "lots", "-o", out],
+        "muscle",
+    );
+    fails(
+        dir.path(),
+        &["body", "--pose", "moonwalk", "-o", out],
+        "unknown pose \"moonwalk\"",
+    );
+    fails(
+        dir.path(),
+        &["body", "--pose", "random:x", "-o", out],
+        "seed",
+    );
+    fails(dir.path(), &["body"], "-o body.obj");
+}
+
+#[test]
+fn missing_and_corrupt_assets_are_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = tempfile::tempdir().unwrap();
+    let out = out_dir.path().join("x.obj");
+    let out = out.to_str().unwrap();
+    let assets = dir.path().to_str().unwrap();
+    fails(
+        out_dir.path(),
+        &["--assets", assets, "body", "-o", out],
+        "body.safetensors.gz",
+    );
+    std::fs::create_dir(dir.path().join("body")).unwrap();
+    std::fs::write(
+        dir.path().join("body/body.safetensors.gz"),
+        b"\x1f\x8bgarbage",
+    )
+    .unwrap();
+    fails(
+        out_dir.path(),
+        &["--assets", assets, "body", "-o", out],
+        "corrupt",
+    );
+}
+
+#[test]
+fn malformed_bvh_and_unwritable_output_are_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let bvh = tempfile::NamedTempFile::with_suffix(".bvh").unwrap();
+    std::fs::write(bvh.path(), "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}\n").unwrap();
+    let out = dir.path().join("x.obj");
+    let spec = format!("{}:0", bvh.path().display());
+    fails(
+        dir.path(),
+        &["body", "--pose", &spec, "-o", out.to_str().unwrap()],
+        "line 5",
+    );
+    let spec = bvh.path().display().to_string();
+    fails(
+        dir.path(),
+        &["body", "--pose", &spec, "-o", out.to_str().unwrap()],
+        "FILE.bvh:FRAME",
+    );
+    let missing = dir.path().join("no-such-dir").join("x.obj");
+    let png = dir.path().join("x.png");
+    fails(
+        dir.path(),
+        &[
+            "body",
+            "-o",
+            missing.to_str().unwrap(),
+            "--png",
+            png.to_str().unwrap(),
+        ],
+        "no-such-dir",
+    );
+}
