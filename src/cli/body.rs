@@ -95,6 +95,27 @@ enum BodyCommand {
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
     },
+    /// Render poses of the pose prior (random:SEED .. random:SEED+N-1) on one body, front
+    /// and side views, in a grid; prints each pose's family and key poses.
+    Gallery {
+        #[command(flatten)]
+        shape: ShapeArgs,
+        /// Number of poses.
+        #[arg(long, default_value_t = 8)]
+        samples: usize,
+        /// Seed of the first pose.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Poses per row.
+        #[arg(long, default_value_t = 4)]
+        columns: usize,
+        /// Height of one cell in pixels.
+        #[arg(long, default_value_t = 360)]
+        cell_height: u32,
+        /// Output PNG.
+        #[arg(short = 'o', long, value_name = "FILE.png")]
+        output: PathBuf,
+    },
     /// Sample poses from the pose prior on sampled adult bodies and report the share with
     /// body self-intersection (limbs through the torso or each other), per family.
     CheckPrior {
@@ -137,6 +158,9 @@ pub fn run(args: BodyArgs, ctx: &Context) -> anyhow::Result<()> {
             seed,
             report,
         }) => check_prior(ctx, samples, seed, report.as_deref()),
+        Some(BodyCommand::Gallery { shape, samples, seed, columns, cell_height, output }) => {
+            gallery(ctx, &shape, samples, seed, columns, cell_height, &output)
+        }
         None => {
             let Some(output) = args.output else {
                 bail!("drape body needs an output file: -o body.obj (see drape body --help)");
@@ -197,6 +221,37 @@ fn build(
         png.map(|p| format!(", {}", p.display()))
             .unwrap_or_default()
     );
+    Ok(())
+}
+
+fn gallery(
+    ctx: &Context,
+    shape: &ShapeArgs,
+    samples: usize,
+    seed: u64,
+    columns: usize,
+    cell_height: u32,
+    output: &Path,
+) -> anyhow::Result<()> {
+    if samples == 0 {
+        bail!("--samples must be at least 1");
+    }
+    let params = shape.params()?;
+    let (model, library) = load(ctx)?;
+    let body = model.shape(&params)?;
+    let prior = dataset::sampling::PosePrior::new(library);
+    let opts = eval::render::RenderOptions { height: cell_height, ..Default::default() };
+    let mut images = Vec::with_capacity(samples);
+    for k in 0..samples as u64 {
+        let sampled = prior.sample_seeded(seed + k);
+        let posed = body.pose(&sampled.pose);
+        let layer = eval::render::Layer::new(&posed.vertices, &model.triangles, eval::render::BODY_COLOUR);
+        images.push(eval::render::render(&[layer], &opts)?);
+        println!("{:>2}: random:{} {}", k + 1, seed + k, sampled.describe());
+    }
+    let grid = eval::render::grid(&images, columns, opts.background);
+    sim::io::write_all_or_nothing(&[(output, &eval::render::encode_png(&grid)?)])?;
+    println!("{} poses -> {} ({}x{} px)", samples, output.display(), grid.width, grid.height);
     Ok(())
 }
 

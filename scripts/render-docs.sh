@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Renders the reference images in docs/body/ with the drape program. Rerun after changing
+# the body model, the pose library or the renderer, look at the images, commit them.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo build --release --quiet
+drape=target/release/drape
+out=docs/body
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+mkdir -p "$out"
+
+$drape body -o "$tmp/b.obj" --png "$out/default.png"
+$drape body --pose t-pose -o "$tmp/b.obj" --png "$out/t-pose.png"
+# Four extreme shapes: the corners of the parameter space, well outside the sampling range.
+$drape body --gender 0 --weight 1 --muscle 0.3 -o "$tmp/b.obj" --png "$out/shape-heavy-woman.png"
+$drape body --gender 1 --muscle 1 --weight 0.6 -o "$tmp/b.obj" --png "$out/shape-muscular-man.png"
+$drape body --gender 1 --weight 0 --muscle 0 --height 0.8 -o "$tmp/b.obj" --png "$out/shape-thin-tall-man.png"
+$drape body --gender 0 --age 1 --height 0.2 --proportions 0 -o "$tmp/b.obj" --png "$out/shape-old-short-woman.png"
+# Eight poses of the prior (seeds 9 to 16 cover the three families) on the default body.
+$drape body gallery --samples 8 --seed 9 --columns 4 --cell-height 300 -o "$out/sampled-poses.png" | tee "$out/sampled-poses.txt"
