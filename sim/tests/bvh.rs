@@ -20,9 +20,12 @@ fn bvh_name(rig: &str) -> &str {
     }
 }
 
+/// One frame: root position (BVH units) and `(bone, [z, y, x] degrees)` rotations.
+type Frame<'a> = (Vec3, Vec<(&'a str, [f32; 3])>);
+
 /// A BVH file whose rest pose is the rig's T-pose on `body`, with the given frames
 /// (`(bone, [z, y, x] degrees)` rotations plus the root position) in CMU channel order.
-fn write_bvh(body: &ShapedBody<'_>, frames: &[(Vec3, Vec<(&str, [f32; 3])>)]) -> (String, f32) {
+fn write_bvh(body: &ShapedBody<'_>, frames: &[Frame<'_>]) -> (String, f32) {
     let m = body.model;
     let posed = body.pose(&m.t_pose);
     let head = |b: usize| body.bone_ends(&posed, b).0 / CMU_UNIT;

@@ -147,8 +147,8 @@ pub fn dqs(points: &[Vec3], skin: &SkinWeights, transforms: &[Rigid]) -> Vec<Vec
                 if w[k] != 0.0 {
                     let d = dqs[b[k] as usize];
                     let s = if d.real.dot(pivot) < 0.0 { -w[k] } else { w[k] };
-                    real = real + d.real * s;
-                    dual = dual + d.dual * s;
+                    real += d.real * s;
+                    dual += d.dual * s;
                 }
             }
             DualQuat { real, dual }.to_rigid().apply(p)
