@@ -72,6 +72,45 @@ fn body_writes_obj_and_png() {
     assert!(span(&xs) > 1.6, "arm span {}", span(&xs));
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[1..4], b"PNG");
+
+    // The body's own OBJ read back as an overlay: the picture changes colour, not size.
+    let with = dir.path().join("overlay.png");
+    let o = drape(&[
+        "body",
+        "--gender",
+        "1",
+        "--height",
+        "0.6",
+        "--pose",
+        "t-pose",
+        "-o",
+        obj.to_str().unwrap(),
+        "--png",
+        with.to_str().unwrap(),
+        "--overlay",
+        obj.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let with_bytes = std::fs::read(&with).unwrap();
+    assert_ne!(with_bytes, png_bytes);
+    let broken = dir.path().join("broken.obj");
+    std::fs::write(&broken, "v 0 0 0\n").unwrap();
+    let out = dir.path().join("never.obj");
+    let o = drape(&[
+        "body",
+        "-o",
+        out.to_str().unwrap(),
+        "--png",
+        with.to_str().unwrap(),
+        "--overlay",
+        broken.to_str().unwrap(),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("broken.obj"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
 }
 
 #[test]

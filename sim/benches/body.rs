@@ -18,7 +18,15 @@ fn model() -> &'static BodyModel {
 }
 
 fn shape() -> ShapeParams {
-    ShapeParams { gender: 0.8, age: 0.6, muscle: 0.7, weight: 0.4, height: 0.55, proportions: 0.6, ..Default::default() }
+    ShapeParams {
+        gender: 0.8,
+        age: 0.6,
+        muscle: 0.7,
+        weight: 0.4,
+        height: 0.55,
+        proportions: 0.6,
+        ..Default::default()
+    }
 }
 
 /// Read, gunzip, parse and validate `assets/body/body.safetensors.gz` (2.6 MB).
@@ -38,7 +46,13 @@ fn shape_body(bencher: divan::Bencher) {
 #[divan::bench(sample_count = 50)]
 fn shaped_and_posed_body(bencher: divan::Bencher) {
     let m = model();
-    bencher.bench(|| m.shape(black_box(&shape())).unwrap().pose(&m.t_pose).vertices.len());
+    bencher.bench(|| {
+        m.shape(black_box(&shape()))
+            .unwrap()
+            .pose(&m.t_pose)
+            .vertices
+            .len()
+    });
 }
 
 /// Forward kinematics and LBS only, body already shaped.

@@ -1,7 +1,19 @@
 //! Triangle meshes: the one mesh type bodies, garments and drapes share.
 
-use glam::Vec3;
 use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+
+/// A mesh file could not be read or is not a usable triangle mesh.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot use mesh {path}: {reason}")]
+pub struct MeshError {
+    /// The file.
+    pub path: PathBuf,
+    /// What is wrong.
+    pub reason: String,
+}
 
 /// An indexed triangle mesh in metres, Y up.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -29,6 +41,50 @@ impl TriMesh {
     /// Area-weighted vertex normals (unit length; zero for unused vertices).
     pub fn vertex_normals(&self) -> Vec<Vec3> {
         vertex_normals(&self.vertices, &self.triangles)
+    }
+
+    /// Reads a Wavefront OBJ file (all its objects and groups, polygons triangulated; only
+    /// positions are kept). Rejects files without triangles, with non-finite positions or
+    /// with out-of-range indices.
+    pub fn read_obj(path: &Path) -> Result<Self, MeshError> {
+        let err = |reason: String| MeshError {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let opts = tobj::LoadOptions {
+            triangulate: true,
+            ignore_points: true,
+            ignore_lines: true,
+            ..Default::default()
+        };
+        let (models, _) = tobj::load_obj(path, &opts).map_err(|e| err(e.to_string()))?;
+        let mut mesh = TriMesh::default();
+        for m in &models {
+            let base = mesh.vertices.len() as u32;
+            let n = m.mesh.positions.len() / 3;
+            mesh.vertices.extend(
+                m.mesh
+                    .positions
+                    .chunks_exact(3)
+                    .map(|c| Vec3::new(c[0], c[1], c[2])),
+            );
+            for t in m.mesh.indices.chunks_exact(3) {
+                if t.iter().any(|&i| i as usize >= n) {
+                    return Err(err(format!(
+                        "face index out of range in object {:?}",
+                        m.name
+                    )));
+                }
+                mesh.triangles.push([base + t[0], base + t[1], base + t[2]]);
+            }
+        }
+        if mesh.triangles.is_empty() {
+            return Err(err("no faces".into()));
+        }
+        if mesh.vertices.iter().any(|v| !v.is_finite()) {
+            return Err(err("non-finite vertex position".into()));
+        }
+        Ok(mesh)
     }
 
     /// The mesh as Wavefront OBJ text (`v` and `f` records, 1-based indices).
@@ -77,6 +133,33 @@ pub fn vertex_normals(vertices: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn obj_round_trip_and_bad_files() {
+        let m = TriMesh::new(
+            vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.obj");
+        std::fs::write(&p, m.to_obj("tetrahedron")).unwrap();
+        let back = TriMesh::read_obj(&p).unwrap();
+        assert_eq!(back.triangles, m.triangles);
+        assert!(
+            back.vertices
+                .iter()
+                .zip(&m.vertices)
+                .all(|(a, b)| a.distance(*b) < 1e-6)
+        );
+        std::fs::write(&p, "v 0 0 0\nv 1 0 0\n").unwrap();
+        assert!(
+            TriMesh::read_obj(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("no faces")
+        );
+        assert!(TriMesh::read_obj(&dir.path().join("missing.obj")).is_err());
+    }
 
     #[test]
     fn tetrahedron_normals_point_outwards() {

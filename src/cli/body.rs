@@ -28,6 +28,9 @@ pub struct BodyArgs {
     /// Also render front and side views to this PNG.
     #[arg(long, value_name = "FILE.png")]
     png: Option<PathBuf>,
+    /// Draw this mesh (OBJ, metres, Y up) over the body in the PNG, in blue.
+    #[arg(long, value_name = "FILE.obj", requires = "png")]
+    overlay: Option<PathBuf>,
 }
 
 /// Shape parameters, each in [0, 1].
@@ -158,25 +161,30 @@ pub fn run(args: BodyArgs, ctx: &Context) -> anyhow::Result<()> {
             seed,
             report,
         }) => check_prior(ctx, samples, seed, report.as_deref()),
-        Some(BodyCommand::Gallery { shape, samples, seed, columns, cell_height, output }) => {
-            gallery(ctx, &shape, samples, seed, columns, cell_height, &output)
-        }
+        Some(BodyCommand::Gallery {
+            shape,
+            samples,
+            seed,
+            columns,
+            cell_height,
+            output,
+        }) => gallery(ctx, &shape, samples, seed, columns, cell_height, &output),
         None => {
-            let Some(output) = args.output else {
+            let Some(output) = args.output.clone() else {
                 bail!("drape body needs an output file: -o body.obj (see drape body --help)");
             };
-            build(&args.shape, &args.pose, &output, args.png.as_deref(), ctx)
+            build(&args, &output, ctx)
         }
     }
 }
 
-fn build(
-    shape: &ShapeArgs,
-    pose: &str,
-    output: &Path,
-    png: Option<&Path>,
-    ctx: &Context,
-) -> anyhow::Result<()> {
+fn build(args: &BodyArgs, output: &Path, ctx: &Context) -> anyhow::Result<()> {
+    let (shape, pose, png) = (&args.shape, args.pose.as_str(), args.png.as_deref());
+    let overlay = args
+        .overlay
+        .as_deref()
+        .map(sim::mesh::TriMesh::read_obj)
+        .transpose()?;
     let params = shape.params()?;
     let (model, library) = load(ctx)?;
     let shaped = model.shape(&params)?;
@@ -196,14 +204,24 @@ fn build(
     );
     let obj = mesh.to_obj(&header);
     let png_bytes = match png {
-        Some(_) => Some(eval::render::render_png(
-            &[eval::render::Layer::new(
+        Some(_) => {
+            let mut layers = vec![eval::render::Layer::new(
                 &mesh.vertices,
                 &mesh.triangles,
                 eval::render::BODY_COLOUR,
-            )],
-            &eval::render::RenderOptions::default(),
-        )?),
+            )];
+            if let Some(o) = &overlay {
+                layers.push(eval::render::Layer::new(
+                    &o.vertices,
+                    &o.triangles,
+                    eval::render::GARMENT_COLOUR,
+                ));
+            }
+            Some(eval::render::render_png(
+                &layers,
+                &eval::render::RenderOptions::default(),
+            )?)
+        }
         None => None,
     };
     let mut files: Vec<(&Path, &[u8])> = vec![(output, obj.as_bytes())];
@@ -240,18 +258,28 @@ fn gallery(
     let (model, library) = load(ctx)?;
     let body = model.shape(&params)?;
     let prior = dataset::sampling::PosePrior::new(library);
-    let opts = eval::render::RenderOptions { height: cell_height, ..Default::default() };
+    let opts = eval::render::RenderOptions {
+        height: cell_height,
+        ..Default::default()
+    };
     let mut images = Vec::with_capacity(samples);
     for k in 0..samples as u64 {
         let sampled = prior.sample_seeded(seed + k);
         let posed = body.pose(&sampled.pose);
-        let layer = eval::render::Layer::new(&posed.vertices, &model.triangles, eval::render::BODY_COLOUR);
+        let layer =
+            eval::render::Layer::new(&posed.vertices, &model.triangles, eval::render::BODY_COLOUR);
         images.push(eval::render::render(&[layer], &opts)?);
         println!("{:>2}: random:{} {}", k + 1, seed + k, sampled.describe());
     }
     let grid = eval::render::grid(&images, columns, opts.background);
     sim::io::write_all_or_nothing(&[(output, &eval::render::encode_png(&grid)?)])?;
-    println!("{} poses -> {} ({}x{} px)", samples, output.display(), grid.width, grid.height);
+    println!(
+        "{} poses -> {} ({}x{} px)",
+        samples,
+        output.display(),
+        grid.width,
+        grid.height
+    );
     Ok(())
 }
 
