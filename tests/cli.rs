@@ -37,34 +37,22 @@ fn body_writes_obj_and_png() {
     let dir = tempfile::tempdir().unwrap();
     let obj = dir.path().join("body.obj");
     let png = dir.path().join("body.png");
-    let o = drape(&[
-        "body",
-        "--gender",
-        "1",
-        "--height",
-        "0.6",
-        "--pose",
-        "t-pose",
-        "-o",
-        obj.to_str().unwrap(),
-        "--png",
-        png.to_str().unwrap(),
-    ]);
+    let (obj_s, png_s) = (obj.to_str().unwrap(), png.to_str().unwrap());
+    let tall_man = [
+        "body", "--gender", "1", "--height", "0.6", "--pose", "t-pose", "-o", obj_s,
+    ];
+    let o = drape(&[&tall_man[..], &["--png", png_s]].concat());
     assert!(o.status.success(), "{}", stderr(&o));
     let text = std::fs::read_to_string(&obj).unwrap();
     assert_eq!(text.lines().filter(|l| l.starts_with("v ")).count(), 13_380);
     assert_eq!(text.lines().filter(|l| l.starts_with("f ")).count(), 26_756);
     // A tall man in a T-pose: about 1.8 m tall and even wider than that.
-    let ys: Vec<f32> = text
-        .lines()
-        .filter(|l| l.starts_with("v "))
-        .map(|l| l.split(' ').nth(2).unwrap().parse().unwrap())
-        .collect();
-    let xs: Vec<f32> = text
-        .lines()
-        .filter(|l| l.starts_with("v "))
-        .map(|l| l.split(' ').nth(1).unwrap().parse().unwrap())
-        .collect();
+    let coord = |k: usize| -> Vec<f32> {
+        let v = text.lines().filter(|l| l.starts_with("v "));
+        v.map(|l| l.split(' ').nth(k).unwrap().parse().unwrap())
+            .collect()
+    };
+    let (xs, ys) = (coord(1), coord(2));
     let span = |v: &[f32]| {
         v.iter().cloned().fold(f32::MIN, f32::max) - v.iter().cloned().fold(f32::MAX, f32::min)
     };
@@ -73,23 +61,15 @@ fn body_writes_obj_and_png() {
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[1..4], b"PNG");
 
-    // The body's own OBJ read back as an overlay: the picture changes colour, not size.
+    // The body's own OBJ read back as an overlay changes the picture.
     let with = dir.path().join("overlay.png");
-    let o = drape(&[
-        "body",
-        "--gender",
-        "1",
-        "--height",
-        "0.6",
-        "--pose",
-        "t-pose",
-        "-o",
-        obj.to_str().unwrap(),
-        "--png",
-        with.to_str().unwrap(),
-        "--overlay",
-        obj.to_str().unwrap(),
-    ]);
+    let o = drape(
+        &[
+            &tall_man[..],
+            &["--png", with.to_str().unwrap(), "--overlay", obj_s],
+        ]
+        .concat(),
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let with_bytes = std::fs::read(&with).unwrap();
     assert_ne!(with_bytes, png_bytes);
