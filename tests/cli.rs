@@ -11,6 +11,18 @@ fn drape(args: &[&str]) -> Output {
         .expect("drape runs")
 }
 
+/// Share of pixels of a PNG that are clearly blue (the overlay colour).
+fn blue_share(path: &Path) -> f64 {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let px = buf[..info.buffer_size()].chunks_exact(3);
+    let n = px.len();
+    let blue = px.filter(|c| c[2] as i32 > c[0] as i32 + 40).count();
+    blue as f64 / n as f64
+}
+
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
@@ -71,8 +83,10 @@ fn body_writes_obj_and_png() {
         .concat(),
     );
     assert!(o.status.success(), "{}", stderr(&o));
-    let with_bytes = std::fs::read(&with).unwrap();
-    assert_ne!(with_bytes, png_bytes);
+    // Without the overlay there is no blue; with the body itself overlaid (coincident
+    // surfaces) a good share of the figure turns blue.
+    assert!(blue_share(&png) < 0.001, "{}", blue_share(&png));
+    assert!(blue_share(&with) > 0.05, "{}", blue_share(&with));
     let broken = dir.path().join("broken.obj");
     std::fs::write(&broken, "v 0 0 0\n").unwrap();
     let out = dir.path().join("never.obj");
@@ -152,6 +166,38 @@ fn bad_parameters_are_rejected() {
         "seed",
     );
     fails(dir.path(), &["body"], "-o body.obj");
+}
+
+#[test]
+fn bad_outputs_and_bad_libraries_are_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let same = dir.path().join("same");
+    let same = same.to_str().unwrap();
+    fails(
+        dir.path(),
+        &["body", "-o", same, "--png", same],
+        "two outputs",
+    );
+    let gal = dir.path().join("g.png");
+    let gal = gal.to_str().unwrap();
+    fails(
+        dir.path(),
+        &["body", "gallery", "--cell-height", "100000", "-o", gal],
+        "cell-height",
+    );
+    let lib_dir = tempfile::tempdir().unwrap();
+    let lib = lib_dir.path().join("lib.toml");
+    let text = sim::body::pose::LIBRARY_TOML.replace("z = [-20, 115]", "z = [115, -20]");
+    std::fs::write(&lib, text).unwrap();
+    let out = dir.path().join("x.obj");
+    let args = [
+        "--pose-library",
+        lib.to_str().unwrap(),
+        "body",
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    fails(dir.path(), &args, "limits of LeftArm");
 }
 
 #[test]

@@ -3,7 +3,6 @@
 //! Random numbers come from ChaCha8 seeded with a `u64`, so the same seed gives the same
 //! sample on every machine and in every release of drape that keeps this algorithm.
 
-use glam::Quat;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -169,6 +168,7 @@ impl PosePrior {
         let a = &self.library.keyposes[&spec.keyposes[i]];
         let b = &self.library.keyposes[&spec.keyposes[j]];
         let mut pose = a.slerp(b, blend);
+        // Perturb the limited bones; clamping puts the others back at rest.
         for (q, lim) in pose.rotations.iter_mut().zip(&self.library.limits) {
             if let Some(l) = lim {
                 let [x, y, z] = to_euler_xyz(*q);
@@ -178,8 +178,6 @@ impl PosePrior {
                     y + s * normal(rng),
                     z + s * normal(rng),
                 );
-            } else {
-                *q = Quat::IDENTITY;
             }
         }
         let pose = self.library.clamp(&pose);

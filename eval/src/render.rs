@@ -37,8 +37,6 @@ pub enum View {
     Front,
     /// Looking at the character's right side: camera on -X; the face points right.
     Side,
-    /// Looking at the back: camera on -Z.
-    Back,
 }
 
 impl View {
@@ -47,7 +45,6 @@ impl View {
         match self {
             View::Front => (Vec2::new(p.x, p.y), p.z),
             View::Side => (Vec2::new(p.z, p.y), -p.x),
-            View::Back => (Vec2::new(-p.x, p.y), -p.z),
         }
     }
 
@@ -56,7 +53,6 @@ impl View {
         match self {
             View::Front => Vec3::Z,
             View::Side => -Vec3::X,
-            View::Back => -Vec3::Z,
         }
     }
 }
@@ -99,8 +95,8 @@ pub struct Image {
 /// Rendering failed.
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
-    /// Nothing to draw or non-finite positions.
-    #[error("nothing to render: {0}")]
+    /// Nothing to draw, or input that cannot be drawn.
+    #[error("cannot render: {0}")]
     Empty(&'static str),
     /// PNG encoding failed.
     #[error("PNG encoding: {0}")]
@@ -108,6 +104,9 @@ pub enum RenderError {
 }
 
 const SUPERSAMPLE: u32 = 2;
+
+/// Largest image height accepted (pixels).
+pub const MAX_HEIGHT: u32 = 2048;
 
 /// Renders the layers into one image with the views side by side; all views share one
 /// scale so heights compare across views.
@@ -119,6 +118,23 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
     if points().any(|p| !p.is_finite()) {
         return Err(RenderError::Empty("non-finite vertex positions"));
     }
+    if layers.iter().any(|l| {
+        l.triangles
+            .iter()
+            .flatten()
+            .any(|&i| i as usize >= l.vertices.len())
+    }) {
+        return Err(RenderError::Empty("a triangle index is out of range"));
+    }
+    if !(16..=MAX_HEIGHT).contains(&opts.height) {
+        return Err(RenderError::Empty(
+            "the image height must lie in 16 to 2048 pixels",
+        ));
+    }
+    let normals: Vec<Vec<Vec3>> = layers
+        .iter()
+        .map(|l| sim::mesh::vertex_normals(l.vertices, l.triangles))
+        .collect();
     // Per-view screen bounds, shared vertical range and scale.
     let bounds: Vec<(Vec2, Vec2)> = opts
         .views
@@ -146,9 +162,9 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
         .map(|b| (((b.1.x - b.0.x) + 2.0 * margin) * scale).ceil().max(8.0) as u32)
         .collect();
     let w_px: u32 = widths.iter().sum();
-    let mut colour =
-        vec![Vec3::from_array(opts.background.map(|c| c as f32 / 255.0)); (w_px * h_px) as usize];
-    let mut depth = vec![f32::MIN; (w_px * h_px) as usize];
+    let (w_us, h_us) = (w_px as usize, h_px as usize);
+    let mut colour = vec![Vec3::from_array(opts.background.map(|c| c as f32 / 255.0)); w_us * h_us];
+    let mut depth = vec![f32::MIN; w_us * h_us];
 
     let mut x0 = 0u32;
     for ((view, b), &w) in opts.views.iter().zip(&bounds).zip(&widths) {
@@ -159,8 +175,7 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
             )
         };
         let light = (view.towards_camera() + Vec3::new(0.25, 0.45, 0.0)).normalize();
-        for layer in layers {
-            let normals = sim::mesh::vertex_normals(layer.vertices, layer.triangles);
+        for (layer, normals) in layers.iter().zip(&normals) {
             let base = Vec3::from_array(layer.colour.map(|c| c as f32 / 255.0));
             let proj: Vec<(Vec2, f32)> = layer
                 .vertices
@@ -187,9 +202,6 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
                 }
                 for py in lo.y.floor() as u32..=hi.y.ceil() as u32 {
                     for px in lo.x.floor() as u32..=hi.x.ceil() as u32 {
-                        if px >= x0 + w || py >= h_px {
-                            continue;
-                        }
                         let q = Vec2::new(px as f32 + 0.5, py as f32 + 0.5);
                         let w0 = (pb.0 - q).perp_dot(pc.0 - q) / area;
                         let w1 = (pc.0 - q).perp_dot(pa.0 - q) / area;
@@ -198,7 +210,7 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
                             continue;
                         }
                         let z = w0 * pa.1 + w1 * pb.1 + w2 * pc.1;
-                        let k = (py * w_px + px) as usize;
+                        let k = py as usize * w_us + px as usize;
                         if z <= depth[k] {
                             continue;
                         }
@@ -228,7 +240,11 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
             let mut acc = Vec3::ZERO;
             for dy in 0..SUPERSAMPLE {
                 for dx in 0..SUPERSAMPLE {
-                    acc += colour[((y * SUPERSAMPLE + dy) * w_px + x * SUPERSAMPLE + dx) as usize];
+                    let (sy, sx) = (
+                        (y * SUPERSAMPLE + dy) as usize,
+                        (x * SUPERSAMPLE + dx) as usize,
+                    );
+                    acc += colour[sy * w_us + sx];
                 }
             }
             let c = acc / (SUPERSAMPLE * SUPERSAMPLE) as f32;
@@ -245,7 +261,7 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
     })
 }
 
-/// Places images in a grid, `columns` per row, on the first image's background colour.
+/// Places images in a grid, `columns` per row, on a background colour.
 pub fn grid(images: &[Image], columns: usize, background: [u8; 3]) -> Image {
     let columns = columns.max(1);
     let cell_w = images.iter().map(|i| i.width).max().unwrap_or(1);

@@ -1,4 +1,4 @@
-//! File output that either writes every file of a command or none of them.
+//! File output that writes every file of a command or none of them.
 
 use std::fs;
 use std::io;
@@ -15,17 +15,40 @@ pub struct WriteError {
     pub source: io::Error,
 }
 
-/// Writes all `(path, bytes)` pairs or none: each goes to a temporary file beside its
-/// target first; only when every temporary file is written are they renamed into place.
-/// On failure the temporary files are removed and no target is touched.
+/// Writes all `(path, bytes)` pairs or none.
+///
+/// Targets are checked first (no path twice, none an existing folder); then each file goes
+/// to a temporary file beside its target, and only when all are written are they renamed
+/// into place. On failure the temporary files are removed and no target is touched. The
+/// renames themselves are not atomic as a group: a rename can only fail after the checks
+/// if the file system changes under the command.
 pub fn write_all_or_nothing(files: &[(&Path, &[u8])]) -> Result<(), WriteError> {
+    let fail = |path: &Path, kind: io::ErrorKind, msg: &str| WriteError {
+        path: path.to_path_buf(),
+        source: io::Error::new(kind, msg.to_string()),
+    };
+    for (k, (path, _)) in files.iter().enumerate() {
+        if files[..k].iter().any(|(p, _)| p == path) {
+            return Err(fail(
+                path,
+                io::ErrorKind::InvalidInput,
+                "named for two outputs of one command",
+            ));
+        }
+        if path.is_dir() {
+            return Err(fail(path, io::ErrorKind::IsADirectory, "is a folder"));
+        }
+    }
     let mut temps: Vec<PathBuf> = Vec::with_capacity(files.len());
-    for (path, bytes) in files {
-        let tmp = temp_path(path);
+    let cleanup = |temps: &[PathBuf]| {
+        for t in temps {
+            let _ = fs::remove_file(t);
+        }
+    };
+    for (k, (path, bytes)) in files.iter().enumerate() {
+        let tmp = temp_path(path, k);
         if let Err(source) = fs::write(&tmp, bytes) {
-            for t in &temps {
-                let _ = fs::remove_file(t);
-            }
+            cleanup(&temps);
             let _ = fs::remove_file(&tmp);
             return Err(WriteError {
                 path: path.to_path_buf(),
@@ -36,9 +59,7 @@ pub fn write_all_or_nothing(files: &[(&Path, &[u8])]) -> Result<(), WriteError> 
     }
     for ((path, _), tmp) in files.iter().zip(&temps) {
         if let Err(source) = fs::rename(tmp, path) {
-            for t in &temps {
-                let _ = fs::remove_file(t);
-            }
+            cleanup(&temps);
             return Err(WriteError {
                 path: path.to_path_buf(),
                 source,
@@ -48,12 +69,12 @@ pub fn write_all_or_nothing(files: &[(&Path, &[u8])]) -> Result<(), WriteError> 
     Ok(())
 }
 
-fn temp_path(path: &Path) -> PathBuf {
+fn temp_path(path: &Path, k: usize) -> PathBuf {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+    path.with_file_name(format!(".{name}.{}-{k}.tmp", std::process::id()))
 }
 
 #[cfg(test)]
@@ -71,6 +92,23 @@ mod tests {
             fs::read_dir(dir.path()).unwrap().count(),
             0,
             "nothing may be left behind"
+        );
+    }
+
+    #[test]
+    fn same_path_twice_and_folders_are_refused_before_writing() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = dir.path().join("a.txt");
+        let e = write_all_or_nothing(&[(&a, b"1"), (&a, b"2")]).unwrap_err();
+        assert!(e.to_string().contains("two outputs"), "{e}");
+        let sub = dir.path().join("sub");
+        fs::create_dir(&sub).unwrap();
+        let e = write_all_or_nothing(&[(&a, b"1"), (&sub, b"2")]).unwrap_err();
+        assert!(e.to_string().contains("folder"), "{e}");
+        assert_eq!(
+            fs::read_dir(dir.path()).unwrap().count(),
+            1,
+            "only the folder itself"
         );
     }
 

@@ -33,11 +33,6 @@ impl TriMesh {
         }
     }
 
-    /// Axis-aligned bounds `(min, max)`; `None` for an empty mesh.
-    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
-        bounds(&self.vertices)
-    }
-
     /// Area-weighted vertex normals (unit length; zero for unused vertices).
     pub fn vertex_normals(&self) -> Vec<Vec3> {
         vertex_normals(&self.vertices, &self.triangles)

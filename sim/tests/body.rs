@@ -292,6 +292,43 @@ fn asset_round_trips_through_its_encoding() {
         back.targets, m.targets,
         "f16 deltas survive a second round trip exactly"
     );
+    assert_eq!(back.skin, m.skin);
+    assert_eq!(back.joint_base, m.joint_base);
+    assert_eq!(back.joint_labels, m.joint_labels);
+    assert_eq!(back.reference_joints, m.reference_joints);
+    assert_eq!(back.provenance, m.provenance);
+    for (a, b) in back.t_pose.rotations.iter().zip(&m.t_pose.rotations) {
+        assert!(a.angle_between(*b) < 1e-5);
+    }
+}
+
+#[test]
+fn decoder_checks_what_gzip_and_safetensors_cannot() {
+    let m = model();
+    let decode = |bad: &BodyModel| {
+        let e = BodyModel::decode(&bad.encode(), std::path::Path::new("bad.safetensors"));
+        e.unwrap_err().to_string()
+    };
+    let mut bad = m.clone();
+    bad.base_vertices.truncate(1000);
+    bad.skin.bones.truncate(1000);
+    bad.skin.weights.truncate(1000);
+    assert!(decode(&bad).contains("triangle index out of range"));
+    let mut bad = m.clone();
+    bad.skin.weights[17] = [0.9, 0.9, 0.0, 0.0];
+    assert!(decode(&bad).contains("skinning weights"));
+    let mut bad = m.clone();
+    bad.base_vertices[5].x = f32::NAN;
+    assert!(decode(&bad).contains("non-finite"));
+    let mut bad = m.clone();
+    bad.reference_joints.pop();
+    assert!(decode(&bad).contains("reference joints"));
+    let mut bad = m.clone();
+    bad.skin.bones[3][0] = 200;
+    assert!(decode(&bad).contains("bone index out of range"));
+    let mut bad = m.clone();
+    bad.skeleton.bones[2].parent = Some(7);
+    assert!(decode(&bad).contains("inconsistent"));
 }
 
 #[test]

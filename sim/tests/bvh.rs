@@ -190,10 +190,11 @@ fn bvh_written_here_poses_the_body_as_expected() {
     let p2 = motion.retarget(&body, 2).unwrap();
     let b2 = body.pose(&p2);
     let hips = body.joints[model.skeleton.bones[0].head];
-    let min_y = body.vertices.iter().map(|v| v.y).fold(f32::MAX, f32::min);
-    let drop = 0.1 * (hips.y - min_y);
+    // The hips' height in the BVH, in metres, is the rig's T-pose hip height: 10% of it.
+    let drop = 0.1 * probe * CMU_UNIT;
+    let expected = Vec3::new(0.0, -drop, 0.0);
     assert!(
-        (p2.root_translation - Vec3::new(0.0, -drop, 0.0)).length() < 2e-3,
+        (p2.root_translation - expected).length() < 1e-4,
         "{}",
         p2.root_translation
     );
@@ -208,6 +209,52 @@ fn bvh_written_here_poses_the_body_as_expected() {
 }
 
 #[test]
+fn channel_order_follows_the_file() {
+    // Rotations on all three axes of one joint: the file says Z, Y, X, so the joint's
+    // rotation is Rz * Ry * Rx, which nalgebra's from_euler_angles(x, y, z) gives
+    // independently of drape's code.
+    let model = BodyModel::load_default().unwrap();
+    let body = model.shape(&ShapeParams::default()).unwrap();
+    let probe = write_bvh(&body, &[(Vec3::ZERO, vec![])]).1;
+    let (z, y, x) = (30.0f32, 20.0f32, 40.0f32);
+    let frame = (Vec3::new(0.0, probe, 0.0), vec![("LeftArm", [z, y, x])]);
+    let (text, _) = write_bvh(&body, &[frame]);
+    let motion = Motion::parse(&text, "order.bvh".as_ref()).unwrap();
+    let posed = body.pose(&motion.retarget(&body, 0).unwrap());
+    let t_pose = body.pose(&model.t_pose);
+    let reference =
+        nalgebra::UnitQuaternion::from_euler_angles(x.to_radians(), y.to_radians(), z.to_radians());
+    for bone in ["LeftArm", "LeftForeArm", "LeftHand"] {
+        let d0 = bone_dir(&body, &t_pose, bone);
+        let r = reference * nalgebra::Vector3::new(d0.x, d0.y, d0.z);
+        let got = bone_dir(&body, &posed, bone);
+        let angle = got.angle_between(Vec3::new(r.x, r.y, r.z)).to_degrees();
+        assert!(angle < 0.3, "{bone} is {angle:.2} degrees off");
+    }
+    // The other side did not move.
+    let moved = bone_dir(&body, &posed, "RightForeArm").angle_between(bone_dir(
+        &body,
+        &t_pose,
+        "RightForeArm",
+    ));
+    assert!(moved.to_degrees() < 0.01);
+}
+
+#[test]
+fn absurd_counts_are_errors_not_crashes() {
+    let path = std::path::Path::new("huge.bvh");
+    let head = "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n";
+    let frames = format!(
+        "{head} CHANNELS 3 Xposition Yposition Zposition\n}}\nMOTION\nFrames: 1000000000000\nFrame Time: 0.1\n1 2 3\n"
+    );
+    let e = Motion::parse(&frames, path).unwrap_err().to_string();
+    assert!(e.contains("the file has 3"), "{e}");
+    let channels = format!("{head} CHANNELS 99999999999 Xposition\n}}\n");
+    let e = Motion::parse(&channels, path).unwrap_err().to_string();
+    assert!(e.contains("at most 6"), "{e}");
+}
+
+#[test]
 fn malformed_bvh_files_are_rejected_with_a_line_number() {
     let path = std::path::Path::new("bad.bvh");
     let cases = [
@@ -215,11 +262,11 @@ fn malformed_bvh_files_are_rejected_with_a_line_number() {
         ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 zero\n", "line 4"),
         (
             "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 1 Wrotation\n}\n",
-            "unknown channel",
+            "line 5: unknown channel",
         ),
         (
             "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n4 5\n",
-            "end of file",
+            "need 6 values, the file has 5",
         ),
     ];
     for (text, expect) in cases {

@@ -112,8 +112,8 @@ enum BodyCommand {
         /// Poses per row.
         #[arg(long, default_value_t = 4)]
         columns: usize,
-        /// Height of one cell in pixels.
-        #[arg(long, default_value_t = 360)]
+        /// Height of one cell in pixels (16 to 2048).
+        #[arg(long, default_value_t = 360, value_parser = clap::value_parser!(u32).range(16..=2048))]
         cell_height: u32,
         /// Output PNG.
         #[arg(short = 'o', long, value_name = "FILE.png")]
@@ -264,12 +264,17 @@ fn gallery(
     };
     let mut images = Vec::with_capacity(samples);
     for k in 0..samples as u64 {
-        let sampled = prior.sample_seeded(seed + k);
+        let sampled = prior.sample_seeded(seed.wrapping_add(k));
         let posed = body.pose(&sampled.pose);
         let layer =
             eval::render::Layer::new(&posed.vertices, &model.triangles, eval::render::BODY_COLOUR);
         images.push(eval::render::render(&[layer], &opts)?);
-        println!("{:>2}: random:{} {}", k + 1, seed + k, sampled.describe());
+        println!(
+            "{:>2}: random:{} {}",
+            k + 1,
+            seed.wrapping_add(k),
+            sampled.describe()
+        );
     }
     let grid = eval::render::grid(&images, columns, opts.background);
     sim::io::write_all_or_nothing(&[(output, &eval::render::encode_png(&grid)?)])?;
@@ -286,10 +291,12 @@ fn gallery(
 fn import(dir: &Path, wheel_sha256: &str, assets: &Path) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let model = sim::body::import::import(dir, wheel_sha256)?;
-    let bytes = model.to_compressed_bytes();
     // Check the written form decodes to the same model before replacing anything.
     let raw = model.encode();
     let back = BodyModel::decode(&raw, Path::new("(encoded asset)"))?;
+    if back.targets.len() != model.targets.len() || back.base_vertices != model.base_vertices {
+        bail!("the encoded asset does not decode to the imported model");
+    }
     let max_err = model
         .targets
         .iter()
@@ -301,15 +308,23 @@ fn import(dir: &Path, wheel_sha256: &str, assets: &Path) -> anyhow::Result<()> {
                 .map(|(x, y)| (*x - *y).abs().max_element())
         })
         .fold(0.0f32, f32::max);
-    let folder = assets.join("body");
-    std::fs::create_dir_all(&folder)
-        .with_context(|| format!("cannot create {}", folder.display()))?;
-    let asset_path = assets.join(sim::body::asset::ASSET_FILE);
+    // Half precision rounds a delta of up to 1 m to within 0.5 mm.
+    if max_err > 1e-3 {
+        bail!(
+            "f16 rounding moves a target delta by {:.2} mm (more than 1 mm)",
+            max_err * 1e3
+        );
+    }
+    let bytes = sim::body::asset::compress(&raw);
     let provenance = provenance_markdown(
         &model,
         &sim::body::import::hex_sha256(&bytes),
         &sim::body::import::license_text(dir)?,
     );
+    let folder = assets.join("body");
+    std::fs::create_dir_all(&folder)
+        .with_context(|| format!("cannot create {}", folder.display()))?;
+    let asset_path = assets.join(sim::body::asset::ASSET_FILE);
     let prov_path = folder.join("PROVENANCE.md");
     sim::io::write_all_or_nothing(&[(&asset_path, &bytes), (&prov_path, provenance.as_bytes())])?;
     let n_deltas: usize = model.targets.iter().map(|t| t.indices.len()).sum();

@@ -45,9 +45,8 @@ pub const ASSET_FILE: &str = "body/body.safetensors.gz";
 
 /// The assets folder of this source tree (what the `drape` program uses by default).
 pub fn default_assets_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join("assets")
+    let sim_crate = Path::new(env!("CARGO_MANIFEST_DIR"));
+    sim_crate.parent().unwrap_or(sim_crate).join("assets")
 }
 
 /// One stored shape target: the sum of one or more identical MakeHuman target files.
@@ -222,10 +221,25 @@ impl BodyModel {
         let to_vec3 =
             |v: Vec<f32>| -> Vec<Vec3> { v.chunks_exact(3).map(Vec3::from_slice).collect() };
 
+        let columns = |t: &TensorView<'_>, name: &str, n: usize| -> Result<(), BodyError> {
+            match t.shape().last() {
+                Some(&c) if c == n => Ok(()),
+                _ => Err(corrupt(
+                    path,
+                    format!(
+                        "tensor {name} has shape {:?}, expected {n} columns",
+                        t.shape()
+                    ),
+                )),
+            }
+        };
         let base = get("base_vertices", Dtype::F32, 2)?;
-        let n_v = base.shape()[0];
+        columns(&base, "base_vertices", 3)?;
         let base_vertices = to_vec3(read_f32(&base));
-        let tris = read_u32(&get("triangles", Dtype::U32, 2)?);
+        let n_v = base_vertices.len();
+        let tris_t = get("triangles", Dtype::U32, 2)?;
+        columns(&tris_t, "triangles", 3)?;
+        let tris = read_u32(&tris_t);
         if tris.iter().any(|&i| i as usize >= n_v) {
             return Err(corrupt(path, "triangle index out of range"));
         }
@@ -248,7 +262,9 @@ impl BodyModel {
             .chunks_exact(2)
             .map(|c| f16::from_le_bytes([c[0], c[1]]).to_f32())
             .collect();
-        let joint_base = to_vec3(read_f32(&get("joint_base", Dtype::F32, 2)?));
+        let joint_t = get("joint_base", Dtype::F32, 2)?;
+        columns(&joint_t, "joint_base", 3)?;
+        let joint_base = to_vec3(read_f32(&joint_t));
         let n_j = joint_base.len();
         let jd_t = get("joint_deltas", Dtype::F32, 3)?;
         let n_t = meta.targets.len();
@@ -261,13 +277,28 @@ impl BodyModel {
                 "target or joint tables disagree with the metadata",
             ));
         }
-        if offsets.windows(2).any(|w| w[0] > w[1]) || offsets[n_t] as usize != n {
+        if offsets.windows(2).any(|w| w[0] > w[1]) {
             return Err(corrupt(path, "target offsets are not increasing"));
+        }
+        if offsets[n_t] as usize != n {
+            return Err(corrupt(
+                path,
+                "target offsets do not end at the number of deltas",
+            ));
         }
         if indices.iter().any(|&i| i as usize >= n_v) {
             return Err(corrupt(path, "target vertex index out of range"));
         }
         let joint_deltas = to_vec3(read_f32(&jd_t));
+        let finite = base_vertices
+            .iter()
+            .chain(&joint_base)
+            .chain(&joint_deltas)
+            .all(|v| v.is_finite())
+            && comps.iter().all(|c| c.is_finite());
+        if !finite {
+            return Err(corrupt(path, "non-finite positions or deltas"));
+        }
         let mut targets = Vec::with_capacity(n_t);
         for (t, names) in meta.targets.iter().enumerate() {
             let (a, b) = (offsets[t] as usize, offsets[t + 1] as usize);
@@ -290,9 +321,20 @@ impl BodyModel {
         }
 
         let sb = get("skin_bones", Dtype::U8, 2)?;
-        let sw = read_f32(&get("skin_weights", Dtype::F32, 2)?);
-        if sb.shape() != [n_v, 4] || sw.len() != n_v * 4 {
+        let sw_t = get("skin_weights", Dtype::F32, 2)?;
+        if sb.shape() != [n_v, 4] || sw_t.shape() != [n_v, 4] {
             return Err(corrupt(path, "skinning tables do not match the vertices"));
+        }
+        let sw = read_f32(&sw_t);
+        let bad_weights = sw.chunks_exact(4).any(|w| {
+            w.iter().any(|x| !x.is_finite() || *x < 0.0)
+                || (w.iter().sum::<f32>() - 1.0).abs() > 1e-3
+        });
+        if bad_weights {
+            return Err(corrupt(
+                path,
+                "skinning weights are negative, non-finite or do not sum to one",
+            ));
         }
         let n_b = meta.bones.len();
         let skin = SkinWeights {
@@ -314,10 +356,14 @@ impl BodyModel {
                 return Err(corrupt(path, format!("bone {} is inconsistent", b.name)));
             }
         }
+        if meta.reference_joints.len() != n_b {
+            return Err(corrupt(path, "reference joints do not match the bones"));
+        }
         let skeleton = Skeleton {
             bones: meta.bones.clone(),
         };
-        let t_pose = Pose::from_euler_map(&skeleton, &meta.t_pose)?;
+        let t_pose = Pose::from_euler_map(&skeleton, &meta.t_pose)
+            .map_err(|e| corrupt(path, format!("T-pose: {e}")))?;
         Ok(Self {
             base_vertices,
             triangles,
@@ -425,10 +471,16 @@ impl BodyModel {
         safetensors::tensor::serialize(views, Some(info)).unwrap()
     }
 
-    /// The asset file's bytes: [`Self::encode`] compressed with gzip at level 9.
+    /// The asset file's bytes: [`Self::encode`] compressed with [`compress`].
     pub fn to_compressed_bytes(&self) -> Vec<u8> {
-        let mut enc = GzEncoder::new(Vec::new(), Compression::best());
-        enc.write_all(&self.encode()).unwrap();
-        enc.finish().unwrap()
+        compress(&self.encode())
     }
+}
+
+/// Gzip at level 9, as the asset file is stored. The gzip header carries no time stamp, so
+/// the same model always gives the same bytes.
+pub fn compress(raw: &[u8]) -> Vec<u8> {
+    let mut enc = GzEncoder::new(Vec::new(), Compression::best());
+    enc.write_all(raw).expect("writing to memory");
+    enc.finish().expect("writing to memory")
 }

@@ -18,7 +18,6 @@ use std::path::{Path, PathBuf};
 use glam::{Quat, Vec3};
 
 use super::pose::Pose;
-use super::skinning::Rigid;
 use super::{BodyError, ShapedBody};
 
 /// One channel of a BVH joint.
@@ -155,12 +154,20 @@ impl Motion {
         t.expect("Time:")?;
         let frame_time: f32 = t.number()?;
         let n_channels: usize = joints.iter().map(|j| j.channels.len()).sum();
-        let mut frames = Vec::with_capacity(n_frames);
+        let remaining = t.items.len() - t.pos;
+        if n_frames.checked_mul(n_channels) != Some(remaining) {
+            return Err(t.err(format!(
+                "{n_frames} frames of {n_channels} channels need {} values, the file has {remaining}",
+                n_frames.saturating_mul(n_channels)
+            )));
+        }
+        let mut frames = Vec::new();
         for _ in 0..n_frames {
-            let mut f = Vec::with_capacity(n_channels);
+            let mut f = Vec::new();
             for _ in 0..n_channels {
                 let v: f32 = t.number()?;
                 if !v.is_finite() {
+                    t.pos -= 1;
                     return Err(t.err("non-finite channel value"));
                 }
                 f.push(v);
@@ -195,7 +202,12 @@ impl Motion {
         let offset = t.vec3()?;
         t.expect("CHANNELS")?;
         let n: usize = t.number()?;
-        let mut channels = Vec::with_capacity(n);
+        if n > 6 {
+            return Err(t.err(format!(
+                "{n} channels on one joint; BVH joints have at most 6"
+            )));
+        }
+        let mut channels = Vec::new();
         for _ in 0..n {
             let c = match t.next()?.to_ascii_lowercase().as_str() {
                 "xposition" => Channel::XPosition,
@@ -204,7 +216,10 @@ impl Motion {
                 "xrotation" => Channel::XRotation,
                 "yrotation" => Channel::YRotation,
                 "zrotation" => Channel::ZRotation,
-                other => return Err(t.err(format!("unknown channel {other:?}"))),
+                other => {
+                    t.pos -= 1;
+                    return Err(t.err(format!("unknown channel {other:?}")));
+                }
             };
             channels.push(c);
         }
@@ -219,8 +234,8 @@ impl Motion {
         loop {
             let word = t.next()?;
             match word {
-                "JOINT" => Self::parse_joint(t, joints, Some(me))?,
-                "End" => {
+                w if w.eq_ignore_ascii_case("JOINT") => Self::parse_joint(t, joints, Some(me))?,
+                w if w.eq_ignore_ascii_case("End") => {
                     t.expect("Site")?;
                     t.expect("{")?;
                     t.expect("OFFSET")?;
@@ -337,35 +352,39 @@ impl Motion {
         let rest = &body.rest_frames;
         let t_frames = skeleton.posed_frames(rest, &body.model.t_pose);
         let (g, root_pos) = self.world_rotations(frame);
-        let mut posed: Vec<Rigid> = Vec::with_capacity(skeleton.len());
+        // Posed world rotation of each bone, then its local rotation from
+        // W_b = W_parent * R_parent^-1 * R_b * L_b (rotation parts of the FK formula).
+        let mut world: Vec<Quat> = Vec::with_capacity(skeleton.len());
         let mut pose = Pose::rest(skeleton.len());
         for (i, b) in skeleton.bones.iter().enumerate() {
-            // Posed world rotation of the bone.
             let w = match (joint_of[i], b.parent) {
                 (Some(j), _) => g[j] * t_frames[i].rot,
-                (None, Some(p)) => posed[p].rot * t_frames[p].rot.conjugate() * t_frames[i].rot,
+                (None, Some(p)) => world[p] * t_frames[p].rot.conjugate() * t_frames[i].rot,
                 (None, None) => t_frames[i].rot,
             };
-            // W_b = Wparent * Rest_p^-1 * Rest_b * L_b  =>  L_b = (Wparent * Rest_p^-1 * Rest_b)^-1 W_b.
             let before = match b.parent {
-                Some(p) => posed[p].rot * rest[p].rot.conjugate() * rest[i].rot,
+                Some(p) => world[p] * rest[p].rot.conjugate() * rest[i].rot,
                 None => rest[i].rot,
             };
             pose.rotations[i] = (before.conjugate() * w).normalize();
-            let frame_i = match b.parent {
-                Some(p) => {
-                    posed[p]
-                        * rest[p].inverse()
-                        * rest[i]
-                        * Rigid::new(pose.rotations[i], Vec3::ZERO)
-                }
-                None => rest[i] * Rigid::new(pose.rotations[i], Vec3::ZERO),
-            };
-            posed.push(frame_i);
+            world.push(w);
         }
+        // Hip height above the lowest joint point, in the BVH's rest pose and in the rig's
+        // T-pose: their ratio scales the BVH's root height to this body.
+        let t_skin = skeleton.skinning_transforms(rest, &t_frames);
+        let lowest = skeleton
+            .bones
+            .iter()
+            .zip(&t_skin)
+            .flat_map(|(b, s)| {
+                [
+                    s.apply(body.joints[b.head]).y,
+                    s.apply(body.joints[b.tail]).y,
+                ]
+            })
+            .fold(f32::MAX, f32::min);
+        let h_rig = t_skin[0].apply(body.joints[skeleton.bones[0].head]).y - lowest;
         let h_bvh = self.rest_root_height();
-        let min_y = body.vertices.iter().map(|v| v.y).fold(f32::MAX, f32::min);
-        let h_rig = body.joints[skeleton.bones[0].head].y - min_y;
         if h_bvh > 0.0 {
             pose.root_translation = Vec3::new(0.0, root_pos.y * h_rig / h_bvh - h_rig, 0.0);
         }

@@ -122,9 +122,10 @@ fn parse_base_obj(text: &str, path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 4]>),
             }
             Some("g") => group = it.next().unwrap_or("").to_string(),
             Some("f") if group == "body" => {
+                // OBJ indices count from 1; 0 and negative (relative) indices are not used
+                // by base.obj and are refused.
                 let idx: Vec<u32> = it
-                    .filter_map(|s| s.split('/').next()?.parse::<u32>().ok())
-                    .map(|i| i - 1)
+                    .filter_map(|s| s.split('/').next()?.parse::<u32>().ok()?.checked_sub(1))
                     .collect();
                 if idx.len() != 4 {
                     return Err(import_err(
@@ -228,6 +229,15 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
     // Geometry.
     let obj_path = data.join("3dobjs/base.obj");
     let (all_vertices, quads) = parse_base_obj(&r.read_text("3dobjs/base.obj")?, &obj_path)?;
+    if all_vertices.len() < BODY_VERTICES {
+        return Err(import_err(
+            &obj_path,
+            format!(
+                "{} vertices, the body alone has {BODY_VERTICES}",
+                all_vertices.len()
+            ),
+        ));
+    }
     let base_vertices = all_vertices[..BODY_VERTICES].to_vec();
     let triangles = triangulate(&quads, &base_vertices);
 
@@ -301,6 +311,12 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
         order.push(name);
         stack.extend(children);
     }
+    if order.len() != rig.len() {
+        return Err(import_err(
+            &rig_path,
+            "some bones are not connected to the root",
+        ));
+    }
     let c = blender_to_yup();
     let mut bones = Vec::new();
     let mut reference_joints = Vec::new();
@@ -322,6 +338,16 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
         );
     }
     let skeleton = Skeleton { bones };
+    let n_all = all_vertices.len() as u32;
+    if let Some(m) = joint_members
+        .iter()
+        .find(|m| m.is_empty() || m.iter().any(|&i| i >= n_all))
+    {
+        return Err(import_err(
+            &rig_path,
+            format!("a joint point has no vertices or one beyond base.obj: {m:?}"),
+        ));
+    }
     let joint_of_vertices = |positions: &dyn Fn(u32) -> Vec3| -> Vec<Vec3> {
         joint_members
             .iter()

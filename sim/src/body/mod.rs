@@ -144,11 +144,6 @@ impl BodyModel {
             rest_frames,
         })
     }
-
-    /// The body's triangles (counter-clockwise, outward normals).
-    pub fn triangles(&self) -> &[[u32; 3]] {
-        &self.triangles
-    }
 }
 
 impl ShapedBody<'_> {
@@ -163,11 +158,6 @@ impl ShapedBody<'_> {
             frames,
             skinning,
         }
-    }
-
-    /// The rest-pose mesh.
-    pub fn mesh(&self) -> TriMesh {
-        TriMesh::new(self.vertices.clone(), self.model.triangles.clone())
     }
 
     /// Standing height: top of the head to the soles in the rest pose (m).

@@ -65,20 +65,47 @@ impl Pose {
     ) -> Result<Self, BodyError> {
         #[derive(Deserialize)]
         struct MpfbPose {
-            bone_rotations: BTreeMap<String, [f32; 3]>,
+            bone_rotations: BTreeMap<String, serde_json::Value>,
             #[serde(default)]
-            bone_translations: BTreeMap<String, [f32; 3]>,
+            bone_translations: BTreeMap<String, serde_json::Value>,
+            #[serde(default)]
+            bone_rotation_modes: BTreeMap<String, String>,
         }
-        let parsed: MpfbPose = serde_json::from_str(text).map_err(|e| BodyError::Corrupt {
+        let bad = |reason: String| BodyError::Corrupt {
             path: origin.to_path_buf(),
-            reason: format!("not an MPFB pose file: {e}"),
-        })?;
-        let mut pose = Self::from_euler_map(skeleton, &parsed.bone_rotations)?;
-        if let Some(t) = parsed.bone_translations.get(&skeleton.bones[0].name) {
-            // Blender axes to drape's.
-            pose.root_translation = Vec3::new(t[0], t[2], -t[1]);
+            reason,
+        };
+        let parsed: MpfbPose =
+            serde_json::from_str(text).map_err(|e| bad(format!("not an MPFB pose file: {e}")))?;
+        // Bone translations live in each bone's rest frame; drape's poses carry only the
+        // root's world translation, so files that move bones are refused, not misread.
+        if let Some(bone) = parsed.bone_translations.keys().next() {
+            return Err(bad(format!(
+                "bone translations (of {bone}) are not supported"
+            )));
         }
-        Ok(pose)
+        let mut angles = BTreeMap::new();
+        for (bone, value) in &parsed.bone_rotations {
+            let mode = parsed
+                .bone_rotation_modes
+                .get(bone)
+                .map_or("XYZ", String::as_str);
+            if mode != "XYZ" {
+                return Err(bad(format!(
+                    "{bone}: rotation mode {mode}; only XYZ Euler angles are supported"
+                )));
+            }
+            let xyz: [f32; 3] = serde_json::from_value(value.clone()).map_err(|_| {
+                bad(format!(
+                    "{bone}: expected three Euler angles, found {value}"
+                ))
+            })?;
+            if xyz.iter().any(|a| !a.is_finite()) {
+                return Err(bad(format!("{bone}: non-finite angle")));
+            }
+            angles.insert(bone.clone(), xyz);
+        }
+        Self::from_euler_map(skeleton, &angles).map_err(|e| bad(e.to_string()))
     }
 
     /// Per-bone spherical interpolation between two poses (`t` = 0 gives `self`).
@@ -200,7 +227,25 @@ impl PoseLibrary {
             let i = skeleton
                 .index(bone)
                 .ok_or_else(|| BodyError::UnknownBone(bone.clone()))?;
+            let ranges_ok = [lim.x, lim.y, lim.z]
+                .iter()
+                .all(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo <= hi);
+            if !ranges_ok || !lim.jitter.is_finite() || lim.jitter < 0.0 {
+                return Err(BodyError::PoseLibrary(format!(
+                    "limits of {bone}: every range must be [min, max] with min <= max, jitter >= 0"
+                )));
+            }
             limits[i] = Some(*lim);
+        }
+        let total: f32 = file.families.values().map(|f| f.weight).sum();
+        let weights_ok = file
+            .families
+            .values()
+            .all(|f| f.weight.is_finite() && f.weight >= 0.0);
+        if file.families.is_empty() || !weights_ok || total <= 0.0 {
+            return Err(BodyError::PoseLibrary(
+                "at least one family, with weights >= 0 that do not all vanish".into(),
+            ));
         }
         for (family, spec) in &file.families {
             for k in &spec.keyposes {
@@ -231,8 +276,13 @@ impl PoseLibrary {
             let clamped = lib.clamp(pose);
             for (i, (a, b)) in pose.rotations.iter().zip(&clamped.rotations).enumerate() {
                 if a.angle_between(*b) > 1e-3 {
+                    let why = if lib.limits[i].is_some() {
+                        "breaks the joint limits of"
+                    } else {
+                        "rotates a bone without limits,"
+                    };
                     return Err(BodyError::PoseLibrary(format!(
-                        "key pose {name:?} breaks the joint limits of {}",
+                        "key pose {name:?} {why} {}",
                         skeleton.bones[i].name
                     )));
                 }

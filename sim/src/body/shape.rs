@@ -273,6 +273,47 @@ mod tests {
     }
 
     #[test]
+    fn axis_weights_take_makehuman_values() {
+        let w = |p: ShapeParams, f: Factor| p.factor_weight(f);
+        let at = |age: f32| ShapeParams {
+            age,
+            ..Default::default()
+        };
+        // 11 years is all child; 25 all young; 57.5 half young half old; 90 all old.
+        assert!((w(at(0.1875), Factor::Age(Age::Child)) - 1.0).abs() < 1e-3);
+        assert!((w(at(0.5), Factor::Age(Age::Young)) - 1.0).abs() < 1e-6);
+        assert!((w(at(0.75), Factor::Age(Age::Old)) - 0.5).abs() < 1e-6);
+        assert!((w(at(1.0), Factor::Age(Age::Old)) - 1.0).abs() < 1e-6);
+        // Age 0.25: young = 3.2 (0.25 - 0.1875) = 0.2, child = 1 - 0.2 = 0.8, no baby.
+        assert!((w(at(0.25), Factor::Age(Age::Young)) - 0.2).abs() < 1e-5);
+        assert!((w(at(0.25), Factor::Age(Age::Child)) - 0.8).abs() < 1e-5);
+        assert_eq!(w(at(0.25), Factor::Age(Age::Baby)), 0.0);
+        // Age 0.1: baby = 1 - 0.5333 = 0.4667, child = 0.5333.
+        assert!((w(at(0.1), Factor::Age(Age::Baby)) - 0.4667).abs() < 1e-3);
+        // Muscle 0.2: min 0.6, average 0.4, max 0; weight 0.9: max 0.8, average 0.2.
+        let p = ShapeParams {
+            muscle: 0.2,
+            weight: 0.9,
+            gender: 0.3,
+            ..Default::default()
+        };
+        assert!((w(p, Factor::Muscle(Level::Min)) - 0.6).abs() < 1e-6);
+        assert!((w(p, Factor::Muscle(Level::Average)) - 0.4).abs() < 1e-6);
+        assert_eq!(w(p, Factor::Muscle(Level::Max)), 0.0);
+        assert!((w(p, Factor::Weight(Level::Max)) - 0.8).abs() < 1e-6);
+        assert!((w(p, Factor::Gender(Gender::Male)) - 0.3).abs() < 1e-6);
+        assert!((w(p, Factor::Gender(Gender::Female)) - 0.7).abs() < 1e-6);
+        // Race shares are normalised.
+        let r = ShapeParams {
+            african: 2.0 / 3.0,
+            asian: 0.0,
+            caucasian: 2.0 / 3.0,
+            ..Default::default()
+        };
+        assert!((w(r, Factor::Race(Race::African)) - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
     fn target_names_parse() {
         let f = parse_target_name("height/male-old-minmuscle-maxweight-maxheight").unwrap();
         assert_eq!(

@@ -44,9 +44,10 @@ pub fn blender_to_yup() -> Quat {
 }
 
 /// Blender's zero-roll bone rotation: the shortest arc taking +Y onto `dir` (unit, in
-/// Blender axes), with a half turn about Z when `dir` points straight down -Y.
+/// Blender axes), with a half turn about Z when `dir` points straight down -Y (Blender's
+/// own cut-off: x^2 + z^2 at most 2.5e-4 squared).
 fn zero_roll_rotation(dir: Vec3) -> Quat {
-    if dir.y < -0.99999 {
+    if dir.y < 0.0 && dir.x * dir.x + dir.z * dir.z <= 6.25e-8 {
         Quat::from_rotation_z(std::f32::consts::PI)
     } else {
         Quat::from_rotation_arc(Vec3::Y, dir)
@@ -105,11 +106,6 @@ impl Skeleton {
             .map(|(r, p)| *p * r.inverse())
             .collect()
     }
-
-    /// Unit direction (head to tail) of a bone's axis in a set of world frames.
-    pub fn bone_axis(frames: &[Rigid], bone: usize) -> Vec3 {
-        frames[bone].rot * Vec3::Y
-    }
 }
 
 #[cfg(test)]
@@ -154,6 +150,53 @@ mod tests {
             assert!((f.rot * Vec3::Y - d).length() < 1e-6);
             assert!((f.trans - j[b.head]).length() < 1e-6);
         }
+    }
+
+    #[test]
+    fn roll_turns_the_frame_about_the_bone_as_blender_does() {
+        // A bone along drape's -Z is Blender's +Y: with roll 0 its frame is Blender's world
+        // frame, so local X = +X and local Z = Blender +Z = drape +Y. Roll +90 degrees turns
+        // local X onto -(local Z at roll 0) = drape -Y.
+        let joints = [Vec3::ZERO, Vec3::new(0.0, 0.0, -1.0)];
+        for (roll, x_axis, z_axis) in [
+            (0.0, Vec3::X, Vec3::Y),
+            (std::f32::consts::FRAC_PI_2, -Vec3::Y, Vec3::X),
+        ] {
+            let s = Skeleton {
+                bones: vec![Bone {
+                    name: "b".into(),
+                    parent: None,
+                    roll,
+                    head: 0,
+                    tail: 1,
+                }],
+            };
+            let f = s.rest_frames(&joints)[0];
+            assert!(
+                (f.rot * Vec3::X - x_axis).length() < 1e-6,
+                "roll {roll}: x {}",
+                f.rot * Vec3::X
+            );
+            assert!(
+                (f.rot * Vec3::Z - z_axis).length() < 1e-6,
+                "roll {roll}: z {}",
+                f.rot * Vec3::Z
+            );
+        }
+        // A bone straight up (Blender +Z): the shortest arc is a quarter turn about X, so
+        // local X stays +X.
+        let s = Skeleton {
+            bones: vec![Bone {
+                name: "b".into(),
+                parent: None,
+                roll: 0.0,
+                head: 0,
+                tail: 1,
+            }],
+        };
+        let f = s.rest_frames(&[Vec3::ZERO, Vec3::Y])[0];
+        assert!((f.rot * Vec3::X - Vec3::X).length() < 1e-6);
+        assert!((f.rot * Vec3::Z - Vec3::Z).length() < 1e-6);
     }
 
     #[test]

@@ -75,6 +75,11 @@ impl SkinWeights {
 /// Linear blend skinning: `v' = sum_i w_i S_i v` with the skinning transforms `S_i`
 /// (rest world space to posed world space, one per bone).
 pub fn lbs(points: &[Vec3], skin: &SkinWeights, transforms: &[Rigid]) -> Vec<Vec3> {
+    assert_eq!(
+        points.len(),
+        skin.len(),
+        "one set of skinning weights per point"
+    );
     let mats: Vec<(Mat3, Vec3)> = transforms
         .iter()
         .map(|t| (Mat3::from_quat(t.rot), t.trans))
@@ -135,6 +140,11 @@ impl DualQuat {
 /// the vertex weights (flipping each to the hemisphere of the vertex's first bone), then
 /// applies the normalised blend. Keeps volume at twisting joints where LBS collapses.
 pub fn dqs(points: &[Vec3], skin: &SkinWeights, transforms: &[Rigid]) -> Vec<Vec3> {
+    assert_eq!(
+        points.len(),
+        skin.len(),
+        "one set of skinning weights per point"
+    );
     let dqs: Vec<DualQuat> = transforms.iter().map(DualQuat::from_rigid).collect();
     points
         .iter()
@@ -179,6 +189,39 @@ mod tests {
         let back = DualQuat::from_rigid(&a).to_rigid();
         let p = Vec3::new(-0.3, 0.2, 0.9);
         assert!((back.apply(p) - a.apply(p)).length() < 1e-5);
+    }
+
+    #[test]
+    fn dqs_ignores_the_sign_of_a_bone_quaternion() {
+        // q and -q are the same rotation: flipping one bone's quaternion must not change
+        // the result (the blend flips it back to the first bone's hemisphere).
+        let a = rigid(Vec3::new(0.1, 1.0, 0.3), 0.8, Vec3::new(0.1, 0.2, -0.1));
+        let b = rigid(Vec3::new(1.0, 0.2, -0.5), -1.1, Vec3::new(-0.3, 0.0, 0.4));
+        let flipped = Rigid::new(-b.rot, b.trans);
+        let skin = SkinWeights {
+            bones: vec![[0, 1, 0, 0]],
+            weights: vec![[0.3, 0.7, 0.0, 0.0]],
+        };
+        let p = [Vec3::new(0.2, -0.4, 0.6)];
+        let x = dqs(&p, &skin, &[a, b])[0];
+        let y = dqs(&p, &skin, &[a, flipped])[0];
+        assert!(x.distance(y) < 1e-5, "{x} vs {y}");
+    }
+
+    #[test]
+    fn dqs_blends_translations_linearly_when_rotations_agree() {
+        // Same rotation, different translations: the blend moves by the weighted mean
+        // translation (this exercises the normalisation of the blended dual part).
+        let q = Quat::from_axis_angle(Vec3::new(0.3, -1.0, 0.5).normalize(), 0.9);
+        let (ta, tb) = (Vec3::new(0.5, 0.0, -0.2), Vec3::new(-0.1, 0.3, 0.6));
+        let skin = SkinWeights {
+            bones: vec![[0, 1, 0, 0]],
+            weights: vec![[0.25, 0.75, 0.0, 0.0]],
+        };
+        let p = [Vec3::new(0.4, 0.1, -0.3)];
+        let out = dqs(&p, &skin, &[Rigid::new(q, ta), Rigid::new(q, tb)])[0];
+        let expected = q * p[0] + 0.25 * ta + 0.75 * tb;
+        assert!(out.distance(expected) < 1e-5, "{out} vs {expected}");
     }
 
     #[test]
