@@ -10,5 +10,6 @@
 #![warn(missing_docs)]
 
 pub mod body;
+pub mod cloth;
 pub mod io;
 pub mod mesh;

@@ -1,0 +1,222 @@
+//! Simulator parameters: one struct, every field with its unit and default, read from
+//! `configs/sim/default.toml` (the built-in defaults) or a user file.
+
+use std::path::Path;
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+use super::SimError;
+
+/// The built-in configuration file.
+pub const DEFAULT_TOML: &str = include_str!("../../../configs/sim/default.toml");
+
+/// Parameters of the cloth simulator and of the drape protocol.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    /// Simulation frames per second (1/s, default 60).
+    pub fps: f32,
+    /// Substeps per frame, one constraint sweep each (default 10).
+    pub substeps: u32,
+    /// Gravity (m/s^2, default (0, -9.81, 0)).
+    pub gravity: [f32; 3],
+    /// Velocity damping (1/s, default 2): velocities decay as exp(-damping t).
+    pub damping: f32,
+    /// Speed limit of a particle (m/s, default 5).
+    pub max_velocity: f32,
+    /// Mass per area of the cloth (kg/m^2, default 0.15).
+    pub density: f32,
+    /// Compliance of stretch (edge) constraints (m/N, default 1e-6), scaled per edge by
+    /// l^2 / A with A the area of the triangles beside the edge, so a resolution change
+    /// keeps the membrane's stiffness.
+    pub stretch_compliance: f32,
+    /// Compliance of shear constraints (m/N, default 1e-5), scaled like stretch.
+    pub shear_compliance: f32,
+    /// Compliance of distance bending constraints (m/N, default 2e-2), scaled like stretch.
+    pub bend_compliance: f32,
+    /// Largest relative stretch of an edge, enforced as a hard limit (default 0.05).
+    pub stretch_limit: f32,
+    /// Largest relative compression of an edge, enforced as a hard limit (default 0.2).
+    pub compression_limit: f32,
+    /// Add dihedral-angle bending constraints (default false).
+    pub dihedral_bending: bool,
+    /// Compliance of dihedral bending (1/(N m), default 1).
+    pub dihedral_compliance: f32,
+    /// Distance kept between cloth and body (m, default 0.003).
+    pub thickness: f32,
+    /// Extra contact search radius beyond thickness and a particle's travel (m, default 0.01).
+    pub margin: f32,
+    /// Coulomb friction coefficient between cloth and body (default 0.3).
+    pub friction: f32,
+    /// Particle-particle self-collision (default false).
+    pub self_collision: bool,
+    /// Smallest distance between cloth particles with self-collision (m, default 0.004).
+    pub self_distance: f32,
+    /// Frames over which the body morphs from canonical to target (default 60).
+    pub morph_frames: u32,
+    /// Largest per-frame displacement counted as at rest (m, default 0.0005).
+    pub rest_displacement: f32,
+    /// Consecutive frames at rest that end a drape (default 10).
+    pub rest_frames: u32,
+    /// Settling frames at most, after the morph (default 600).
+    pub max_frames: u32,
+    /// Vertices deeper than this inside the body after the final push-out fail the drape
+    /// (m, default 0.001).
+    pub max_penetration: f32,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            fps: 60.0,
+            substeps: 10,
+            gravity: [0.0, -9.81, 0.0],
+            damping: 2.0,
+            max_velocity: 5.0,
+            density: 0.15,
+            stretch_compliance: 1e-6,
+            shear_compliance: 1e-5,
+            bend_compliance: 2e-2,
+            stretch_limit: 0.05,
+            compression_limit: 0.2,
+            dihedral_bending: false,
+            dihedral_compliance: 1.0,
+            thickness: 0.003,
+            margin: 0.01,
+            friction: 0.3,
+            self_collision: false,
+            self_distance: 0.004,
+            morph_frames: 60,
+            rest_displacement: 0.0005,
+            rest_frames: 10,
+            max_frames: 600,
+            max_penetration: 0.001,
+        }
+    }
+}
+
+impl SimConfig {
+    /// Parses TOML (fields left out keep their defaults) and validates it.
+    pub fn from_toml(text: &str, origin: &Path) -> Result<Self, SimError> {
+        let c: SimConfig = toml::from_str(text).map_err(|e| SimError::Config {
+            path: origin.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        c.validate().map_err(|reason| SimError::Config {
+            path: origin.to_path_buf(),
+            reason,
+        })?;
+        Ok(c)
+    }
+
+    /// Reads and validates a configuration file.
+    pub fn load(path: &Path) -> Result<Self, SimError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Gravity as a vector.
+    pub fn gravity(&self) -> Vec3 {
+        Vec3::from_array(self.gravity)
+    }
+
+    /// Length of a frame (s).
+    pub fn frame_dt(&self) -> f32 {
+        1.0 / self.fps
+    }
+
+    /// Length of a substep (s).
+    pub fn substep_dt(&self) -> f32 {
+        1.0 / (self.fps * self.substeps as f32)
+    }
+
+    /// Checks every value's range; the message names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("fps", self.fps),
+            ("max_velocity", self.max_velocity),
+            ("density", self.density),
+            ("thickness", self.thickness),
+            ("rest_displacement", self.rest_displacement),
+            ("max_penetration", self.max_penetration),
+            ("self_distance", self.self_distance),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} = {v} must be a positive number"));
+            }
+        }
+        let non_negative = [
+            ("damping", self.damping),
+            ("stretch_compliance", self.stretch_compliance),
+            ("shear_compliance", self.shear_compliance),
+            ("bend_compliance", self.bend_compliance),
+            ("dihedral_compliance", self.dihedral_compliance),
+            ("margin", self.margin),
+            ("friction", self.friction),
+            ("stretch_limit", self.stretch_limit),
+        ];
+        for (name, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} = {v} must be zero or positive"));
+            }
+        }
+        if !(self.compression_limit.is_finite() && (0.0..1.0).contains(&self.compression_limit)) {
+            return Err(format!(
+                "compression_limit = {} must lie in [0, 1)",
+                self.compression_limit
+            ));
+        }
+        if self.gravity.iter().any(|g| !g.is_finite()) {
+            return Err("gravity must be finite".into());
+        }
+        if !(1..=1000).contains(&self.substeps) {
+            return Err(format!(
+                "substeps = {} must lie in 1 to 1000",
+                self.substeps
+            ));
+        }
+        if self.rest_frames == 0 || self.max_frames == 0 {
+            return Err("rest_frames and max_frames must be at least 1".into());
+        }
+        if self.fps * self.substeps as f32 > 1e5 {
+            return Err("fps * substeps above 100,000 steps per second".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_file_spells_out_the_defaults() {
+        let c = SimConfig::from_toml(DEFAULT_TOML, Path::new("default.toml")).unwrap();
+        assert_eq!(c, SimConfig::default());
+    }
+
+    #[test]
+    fn bad_values_name_the_field() {
+        let e = SimConfig::from_toml("substeps = 0", Path::new("x.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("substeps") && e.contains("x.toml"), "{e}");
+        let e = SimConfig::from_toml("thickness = -1.0", Path::new("x.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("thickness"), "{e}");
+        let e = SimConfig::from_toml("thicknes = 0.1", Path::new("x.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("thicknes"), "{e}");
+        let e = SimConfig::from_toml("friction = nan", Path::new("x.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("friction"), "{e}");
+    }
+}

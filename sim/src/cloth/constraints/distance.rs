@@ -1,0 +1,127 @@
+//! Distance constraints: stretch on edges, shear and bend between particles two edges
+//! apart (the NvCloth cooker's classification), with hard stretch and compression limits.
+
+use glam::Vec3;
+
+use super::xpbd_delta;
+
+/// What a distance constraint models.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    /// A mesh edge.
+    Stretch,
+    /// Two edges apart around a corner (a quad's other diagonal).
+    Shear,
+    /// Two edges apart along a nearly straight path.
+    Bend,
+}
+
+/// One distance constraint `C = |x_i - x_j| - rest`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Distance {
+    /// First particle.
+    pub i: u32,
+    /// Second particle.
+    pub j: u32,
+    /// Rest length (m).
+    pub rest: f32,
+    /// Compliance (m/N).
+    pub compliance: f32,
+    /// Shortest allowed length (m), enforced hard.
+    pub min: f32,
+    /// Longest allowed length (m), enforced hard.
+    pub max: f32,
+}
+
+/// Corrections `(dx_i, dx_j)` of one distance constraint at positions `xi`, `xj`.
+#[inline]
+pub fn solve(c: &Distance, xi: Vec3, xj: Vec3, wi: f32, wj: f32, inv_h2: f32) -> (Vec3, Vec3) {
+    let w = wi + wj;
+    if w == 0.0 {
+        return (Vec3::ZERO, Vec3::ZERO);
+    }
+    let d = xi - xj;
+    let len = d.length();
+    if len < 1e-12 {
+        return (Vec3::ZERO, Vec3::ZERO);
+    }
+    let n = d / len;
+    // Soft part, then the hard limits on the softly corrected length.
+    let dl = xpbd_delta(len - c.rest, w, c.compliance * inv_h2);
+    let soft = len + w * dl;
+    let target = soft.clamp(c.min, c.max);
+    let total = (target - len) / w;
+    (n * (wi * total), n * (-wj * total))
+}
+
+/// Classifies the pair `(a, c)` reached from `a` through `b`: the NvCloth cooker's ratio
+/// `|(a - b) x (c - b)| / |c - a|^2` is 0 on a straight path and 0.5 at a right angle.
+/// Bend below 0.1, shear from 0.35 (quad corners); in between, neither.
+pub fn classify(a: Vec3, b: Vec3, c: Vec3) -> Option<Kind> {
+    let ac = (c - a).length_squared();
+    if ac < 1e-20 {
+        return None;
+    }
+    let ratio = (a - b).cross(c - b).length() / ac;
+    if ratio < 0.1 {
+        Some(Kind::Bend)
+    } else if ratio >= 0.35 {
+        Some(Kind::Shear)
+    } else {
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stiff_constraint_restores_length_and_keeps_the_centre_of_mass() {
+        let c = Distance {
+            i: 0,
+            j: 1,
+            rest: 1.0,
+            compliance: 0.0,
+            min: 0.0,
+            max: f32::MAX,
+        };
+        let (xi, xj) = (Vec3::ZERO, Vec3::new(1.5, 0.0, 0.0));
+        let (di, dj) = solve(&c, xi, xj, 1.0, 3.0, 1e4);
+        assert!(((xi + di).distance(xj + dj) - 1.0).abs() < 1e-6);
+        assert!(
+            (di * 1.0 + dj * (1.0 / 3.0)).length() < 1e-6,
+            "momentum kept with masses 1 and 1/3"
+        );
+    }
+
+    #[test]
+    fn soft_constraint_yields_and_limits_hold() {
+        let soft = Distance {
+            i: 0,
+            j: 1,
+            rest: 1.0,
+            compliance: 1.0,
+            min: 0.0,
+            max: f32::MAX,
+        };
+        let (di, dj) = solve(&soft, Vec3::ZERO, Vec3::X * 2.0, 1.0, 1.0, 1.0);
+        let len = (Vec3::X * 2.0 + dj - di).length();
+        // w = 2, alpha~ = 1: the length moves 2/3 of the way, to 2 - 2/3.
+        assert!((len - (2.0 - 2.0 / 3.0)).abs() < 1e-5, "{len}");
+        let limited = Distance { max: 1.1, ..soft };
+        let (di, dj) = solve(&limited, Vec3::ZERO, Vec3::X * 2.0, 1.0, 1.0, 1.0);
+        assert!(((Vec3::X * 2.0 + dj - di).length() - 1.1).abs() < 1e-5);
+    }
+
+    #[test]
+    fn classification_follows_the_path_shape() {
+        let b = Vec3::ZERO;
+        assert_eq!(classify(-Vec3::X, b, Vec3::X), Some(Kind::Bend));
+        assert_eq!(classify(-Vec3::X, b, Vec3::Y), Some(Kind::Shear));
+        // Equilateral corner (120 degrees): neither.
+        let c = Vec3::new(0.5, 3f32.sqrt() / 2.0, 0.0);
+        assert_eq!(classify(-Vec3::X, b, c), None);
+    }
+}

@@ -1,0 +1,514 @@
+//! Drape protocols and the quality report.
+//!
+//! **Morph and settle** (the paper's PBS): the garment starts as its template on the
+//! canonical body in the rest pose; the body morphs to the target shape and pose over
+//! `morph_frames` frames (shape parameters blended linearly, bones slerped from rest);
+//! then the body holds still and the cloth runs until it is at rest (the largest per-frame
+//! displacement below `rest_displacement` for `rest_frames` consecutive frames, at most
+//! `max_frames` frames); a final pass pushes out particles left inside the body and
+//! measures what remains.
+//!
+//! **Warm start** (the paper's PBS-dagger timing): the same with a static body already in
+//! the target pose and a given starting state, e.g. the DQS warp of the template.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use serde::Serialize;
+
+use super::collision::BodyCollider;
+use super::model::ClothModel;
+use super::solver::{Solver, StageTimes};
+use super::{SimConfig, SimError};
+use crate::body::{BodyError, BodyModel, Pose, ShapeParams};
+
+/// How the body moves during a drape.
+pub trait BodyMotion {
+    /// Frames of motion (0 for a static body).
+    fn frames(&self) -> u32;
+    /// Body vertices after `k` of those frames (`k = 0` is the start).
+    fn at(&self, k: u32) -> Vec<Vec3>;
+    /// Body triangles (fixed topology).
+    fn triangles(&self) -> &[[u32; 3]];
+}
+
+/// A body that does not move.
+#[derive(Debug, Clone)]
+pub struct StaticBody {
+    /// Vertices (m).
+    pub vertices: Vec<Vec3>,
+    /// Triangles.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl BodyMotion for StaticBody {
+    fn frames(&self) -> u32 {
+        0
+    }
+    fn at(&self, _: u32) -> Vec<Vec3> {
+        self.vertices.clone()
+    }
+    fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+}
+
+/// Any motion given by a function of the frame.
+pub struct FnMotion<F: Fn(u32) -> Vec<Vec3>> {
+    /// Frames of motion.
+    pub frames: u32,
+    /// Vertices at frame k.
+    pub at: F,
+    /// Triangles.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl<F: Fn(u32) -> Vec<Vec3>> std::fmt::Debug for FnMotion<F> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FnMotion")
+            .field("frames", &self.frames)
+            .finish()
+    }
+}
+
+impl<F: Fn(u32) -> Vec<Vec3>> BodyMotion for FnMotion<F> {
+    fn frames(&self) -> u32 {
+        self.frames
+    }
+    fn at(&self, k: u32) -> Vec<Vec3> {
+        (self.at)(k)
+    }
+    fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+}
+
+/// The MakeHuman body morphing from one shape in the rest pose to another shape in a pose:
+/// shape parameters blended linearly, every bone slerped from rest to its target rotation.
+#[derive(Debug, Clone)]
+pub struct BodyMorph<'a> {
+    /// The body model.
+    pub model: &'a BodyModel,
+    /// Starting shape (the canonical body: the defaults).
+    pub from: ShapeParams,
+    /// Target shape.
+    pub to: ShapeParams,
+    /// Target pose.
+    pub pose: Pose,
+    /// Frames of the morph.
+    pub frames: u32,
+}
+
+impl BodyMorph<'_> {
+    fn blend(a: &ShapeParams, b: &ShapeParams, t: f32) -> ShapeParams {
+        let l = |x: f32, y: f32| x + (y - x) * t;
+        ShapeParams {
+            gender: l(a.gender, b.gender),
+            age: l(a.age, b.age),
+            muscle: l(a.muscle, b.muscle),
+            weight: l(a.weight, b.weight),
+            height: l(a.height, b.height),
+            proportions: l(a.proportions, b.proportions),
+            african: l(a.african, b.african),
+            asian: l(a.asian, b.asian),
+            caucasian: l(a.caucasian, b.caucasian),
+        }
+    }
+
+    /// Checks both shapes once, so [`BodyMotion::at`] cannot fail.
+    pub fn new(
+        model: &BodyModel,
+        from: ShapeParams,
+        to: ShapeParams,
+        pose: Pose,
+        frames: u32,
+    ) -> Result<BodyMorph<'_>, BodyError> {
+        from.validate()?;
+        to.validate()?;
+        Ok(BodyMorph {
+            model,
+            from,
+            to,
+            pose,
+            frames,
+        })
+    }
+}
+
+impl BodyMotion for BodyMorph<'_> {
+    fn frames(&self) -> u32 {
+        self.frames
+    }
+    fn at(&self, k: u32) -> Vec<Vec3> {
+        let t = if self.frames == 0 {
+            1.0
+        } else {
+            (k as f32 / self.frames as f32).min(1.0)
+        };
+        // Smooth start and stop: the body accelerates and decelerates.
+        let s = t * t * (3.0 - 2.0 * t);
+        let params = Self::blend(&self.from, &self.to, s);
+        let rest = Pose::rest(self.model.skeleton.len());
+        let pose = rest.slerp(&self.pose, s);
+        // Both end shapes were validated; a blend of valid shapes is valid.
+        let body = self
+            .model
+            .shape(&params)
+            .expect("blend of validated shapes");
+        body.pose(&pose).vertices
+    }
+    fn triangles(&self) -> &[[u32; 3]] {
+        &self.model.triangles
+    }
+}
+
+/// Why a drape failed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "reason", rename_all = "snake_case")]
+pub enum Failure {
+    /// A position became NaN or infinite.
+    NonFinite {
+        /// Frame where it happened.
+        frame: u32,
+    },
+    /// Particles moved absurdly far in one frame.
+    Explosion {
+        /// Frame where it happened.
+        frame: u32,
+        /// The largest displacement in that frame (m).
+        displacement: f32,
+    },
+    /// The cloth did not come to rest within `max_frames`.
+    NoConvergence {
+        /// Largest displacement in the last frame (m).
+        last_displacement: f32,
+    },
+    /// Particles remained inside the body after the push-out.
+    PenetrationsLeft {
+        /// How many.
+        count: usize,
+        /// Deepest (m).
+        max_depth: f32,
+    },
+}
+
+impl std::fmt::Display for Failure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Failure::NonFinite { frame } => write!(f, "non-finite positions at frame {frame}"),
+            Failure::Explosion {
+                frame,
+                displacement,
+            } => {
+                write!(
+                    f,
+                    "explosion at frame {frame} (a particle moved {displacement:.2} m)"
+                )
+            }
+            Failure::NoConvergence { last_displacement } => {
+                write!(
+                    f,
+                    "no convergence (last frame moved {:.2} mm)",
+                    last_displacement * 1e3
+                )
+            }
+            Failure::PenetrationsLeft { count, max_depth } => write!(
+                f,
+                "{count} particles left inside the body (deepest {:.2} mm)",
+                max_depth * 1e3
+            ),
+        }
+    }
+}
+
+/// Edge strain `l / l0 - 1` over the mesh edges.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StrainStats {
+    /// Mean.
+    pub mean: f32,
+    /// 95th percentile.
+    pub p95: f32,
+    /// Largest.
+    pub max: f32,
+    /// Share of edges stretched more than 1%.
+    pub over_1pct: f32,
+    /// Share of edges stretched more than 5%.
+    pub over_5pct: f32,
+}
+
+/// Particles inside the body.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct PenetrationStats {
+    /// Particles with a negative signed distance to the body.
+    pub count: usize,
+    /// Deepest (m).
+    pub max_depth: f32,
+    /// Mean depth of those particles (m).
+    pub mean_depth: f32,
+}
+
+/// Everything measured about one drape.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DrapeReport {
+    /// True if the cloth came to rest and no particle is left inside the body.
+    pub converged: bool,
+    /// Why not, when not.
+    pub failure: Option<Failure>,
+    /// Particles of the cloth.
+    pub particles: usize,
+    /// Constraints: stretch, shear, bend, dihedral.
+    pub constraints: [usize; 4],
+    /// Colours of the distance constraints.
+    pub colours: usize,
+    /// Frames of body motion.
+    pub morph_frames: u32,
+    /// Frames after the motion until at rest (or the cap).
+    pub settle_frames: u32,
+    /// Substeps run in total.
+    pub substeps: u64,
+    /// Wall time of the whole drape (s).
+    pub wall_time: f64,
+    /// Wall time per stage (s).
+    pub stage_times: StageTimes,
+    /// Wall time of the final push-out and verification (s).
+    pub verify_time: f64,
+    /// Residual edge strain.
+    pub strain: StrainStats,
+    /// Particles inside the body before the final push-out.
+    pub penetration_before_pushout: PenetrationStats,
+    /// Particles inside the body after it.
+    pub penetration: PenetrationStats,
+    /// Kinetic energy at the end (J).
+    pub kinetic_energy: f32,
+    /// Largest displacement in the last frame (m).
+    pub last_displacement: f32,
+}
+
+/// Final positions and the report.
+#[derive(Debug, Clone)]
+pub struct DrapeResult {
+    /// Particle positions (m).
+    pub positions: Vec<Vec3>,
+    /// Quality and timing.
+    pub report: DrapeReport,
+}
+
+/// What the progress callback sees after each frame.
+#[derive(Debug, Clone, Copy)]
+pub struct Progress {
+    /// Frames done (motion and settling).
+    pub frame: u32,
+    /// True during the body motion.
+    pub morphing: bool,
+    /// Largest displacement of this frame (m).
+    pub max_displacement: f32,
+    /// Kinetic energy (J).
+    pub kinetic_energy: f32,
+}
+
+/// Edge strain statistics of positions `x`.
+pub fn strain(model: &ClothModel, x: &[Vec3]) -> StrainStats {
+    let mut s: Vec<f32> = model
+        .edges
+        .iter()
+        .map(|&[a, b]| {
+            let (a, b) = (a as usize, b as usize);
+            x[a].distance(x[b]) / model.rest[a].distance(model.rest[b]) - 1.0
+        })
+        .collect();
+    if s.is_empty() {
+        return StrainStats::default();
+    }
+    s.sort_by(f32::total_cmp);
+    let n = s.len() as f32;
+    StrainStats {
+        mean: s.iter().sum::<f32>() / n,
+        p95: s[((0.95 * n) as usize).min(s.len() - 1)],
+        max: s[s.len() - 1],
+        over_1pct: s.iter().filter(|&&e| e > 0.01).count() as f32 / n,
+        over_5pct: s.iter().filter(|&&e| e > 0.05).count() as f32 / n,
+    }
+}
+
+/// Radius within which the final pass looks for the body (m).
+const VERIFY_RADIUS: f32 = 0.05;
+
+/// Signed distances of positions to the body (`None`: farther than 5 cm).
+pub fn penetration(body: &BodyCollider, x: &[Vec3]) -> PenetrationStats {
+    let depths: Vec<f32> = x
+        .iter()
+        .filter_map(|p| body.signed_distance(*p, VERIFY_RADIUS))
+        .filter(|d| *d < 0.0)
+        .map(|d| -d)
+        .collect();
+    PenetrationStats {
+        count: depths.len(),
+        max_depth: depths.iter().copied().fold(0.0, f32::max),
+        mean_depth: if depths.is_empty() {
+            0.0
+        } else {
+            depths.iter().sum::<f32>() / depths.len() as f32
+        },
+    }
+}
+
+/// Checks that a garment is placed around a body: at least 30% of its particles within
+/// 10 cm of the body, at most 5% inside it.
+pub fn check_placement(body: &BodyCollider, x: &[Vec3]) -> Result<(), SimError> {
+    let near: Vec<f32> = x
+        .iter()
+        .filter_map(|p| body.signed_distance(*p, 0.1))
+        .collect();
+    let share_near = near.len() as f32 / x.len().max(1) as f32;
+    if share_near < 0.3 {
+        return Err(SimError::Placement(format!(
+            "only {:.0}% of the garment lies within 10 cm of the body; it must be placed around the body in its rest pose",
+            share_near * 100.0
+        )));
+    }
+    let inside = near.iter().filter(|d| **d < 0.0).count() as f32 / x.len() as f32;
+    if inside > 0.05 {
+        return Err(SimError::Placement(format!(
+            "{:.0}% of the garment starts inside the body (at most 5% allowed)",
+            inside * 100.0
+        )));
+    }
+    Ok(())
+}
+
+/// Runs a drape: `start` positions, the body's motion, then settling, push-out and the
+/// report. `parallel` lets a frame use rayon's threads; the result is the same either way.
+pub fn drape(
+    model: &ClothModel,
+    start: &[Vec3],
+    motion: &dyn BodyMotion,
+    config: &SimConfig,
+    parallel: bool,
+    progress: &mut dyn FnMut(&Progress),
+) -> DrapeResult {
+    let t_all = Instant::now();
+    let t = Instant::now();
+    let mut body = BodyCollider::new(&motion.at(0), motion.triangles(), config.margin);
+    let mut solver = Solver::new(model, config, start.to_vec());
+    solver.parallel = parallel;
+    solver.times.body += t.elapsed().as_secs_f64();
+
+    let explosion = 0.5 * config.max_velocity.max(1.0);
+    let mut failure = None;
+    let mut frame = 0u32;
+    let mut last = (f32::MAX, 0.0f32);
+    let check = |stats: &super::solver::FrameStats, frame: u32| {
+        if !stats.finite {
+            Some(Failure::NonFinite { frame })
+        } else if stats.max_displacement > explosion {
+            Some(Failure::Explosion {
+                frame,
+                displacement: stats.max_displacement,
+            })
+        } else {
+            None
+        }
+    };
+    for k in 1..=motion.frames() {
+        let t = Instant::now();
+        let next = motion.at(k);
+        body.advance(&next);
+        solver.times.body += t.elapsed().as_secs_f64();
+        let stats = solver.frame(&body);
+        frame += 1;
+        last = (stats.max_displacement, stats.kinetic_energy);
+        progress(&Progress {
+            frame,
+            morphing: true,
+            max_displacement: last.0,
+            kinetic_energy: last.1,
+        });
+        if let Some(f) = check(&stats, frame) {
+            failure = Some(f);
+            break;
+        }
+    }
+    let mut settle = 0u32;
+    if failure.is_none() {
+        body.hold();
+        let mut calm = 0u32;
+        while settle < config.max_frames {
+            let stats = solver.frame(&body);
+            settle += 1;
+            frame += 1;
+            last = (stats.max_displacement, stats.kinetic_energy);
+            progress(&Progress {
+                frame,
+                morphing: false,
+                max_displacement: last.0,
+                kinetic_energy: last.1,
+            });
+            if let Some(f) = check(&stats, frame) {
+                failure = Some(f);
+                break;
+            }
+            calm = if stats.max_displacement < config.rest_displacement {
+                calm + 1
+            } else {
+                0
+            };
+            if calm >= config.rest_frames {
+                break;
+            }
+        }
+        if failure.is_none() && calm < config.rest_frames {
+            failure = Some(Failure::NoConvergence {
+                last_displacement: last.0,
+            });
+        }
+    }
+
+    // Push-out and verification.
+    let t = Instant::now();
+    let mut x = solver.x.clone();
+    let before = penetration(&body, &x);
+    if x.iter().all(|p| p.is_finite()) {
+        for p in x.iter_mut() {
+            if let Some(hit) = body.closest(*p, VERIFY_RADIUS)
+                && hit.distance < 0.0
+            {
+                *p = hit.point + hit.normal * config.thickness;
+            }
+        }
+    }
+    let after = penetration(&body, &x);
+    let verify_time = t.elapsed().as_secs_f64();
+    if failure.is_none() && after.count > 0 && after.max_depth > config.max_penetration {
+        failure = Some(Failure::PenetrationsLeft {
+            count: after.count,
+            max_depth: after.max_depth,
+        });
+    }
+    let report = DrapeReport {
+        converged: failure.is_none(),
+        failure,
+        particles: model.len(),
+        constraints: [
+            model.kind_counts[0],
+            model.kind_counts[1],
+            model.kind_counts[2],
+            model.dihedral.len(),
+        ],
+        colours: model.distance_colours.len(),
+        morph_frames: motion.frames(),
+        settle_frames: settle,
+        substeps: solver.substeps_run,
+        wall_time: t_all.elapsed().as_secs_f64(),
+        stage_times: solver.times,
+        verify_time,
+        strain: strain(model, &x),
+        penetration_before_pushout: before,
+        penetration: after,
+        kinetic_energy: last.1,
+        last_displacement: last.0,
+    };
+    DrapeResult {
+        positions: x,
+        report,
+    }
+}

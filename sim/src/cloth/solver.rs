@@ -1,0 +1,316 @@
+//! The time step. One frame, as a list of stages:
+//!
+//! 1. **detect**: find each particle's closest body triangle within its reach this frame
+//!    (thickness + margin + its own travel + the body's travel), once per frame, through
+//!    the BVH;
+//! 2. for each substep (`h = frame / substeps`):
+//!    1. **predict**: `v += g h`, clamp the speed, `x += v h`;
+//!    2. **solve**: one Gauss-Seidel sweep over the constraint colours (XPBD);
+//!    3. **collide**: push particles out of the body interpolated to the substep's time,
+//!       along the contact's pseudo-normal, then apply Coulomb friction;
+//!    4. **velocities**: `v = (x - x_before) / h`, damped by `exp(-damping h)`;
+//! 3. **measure**: largest displacement over the frame and kinetic energy (the rest test
+//!    of the drape protocol uses them).
+//!
+//! Determinism: colours are solved in a fixed order, constraints of a colour touch
+//! disjoint particles (so solving them in parallel gives the same bits as in sequence),
+//! and no floating-point sum is split across threads.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::SimConfig;
+use super::collision::{BodyCollider, Contact};
+use super::constraints::{dihedral, distance};
+use super::model::ClothModel;
+
+/// Colours with fewer constraints than this are solved on one thread.
+const PARALLEL_MIN: usize = 1024;
+
+/// Wall time spent in each stage (s).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StageTimes {
+    /// Moving the body model to the next frame (drape protocol).
+    pub body: f64,
+    /// Refitting the BVH and contact detection.
+    pub detect: f64,
+    /// Prediction.
+    pub predict: f64,
+    /// Constraint sweeps.
+    pub solve: f64,
+    /// Contact enforcement and friction.
+    pub collide: f64,
+    /// Velocity update and damping.
+    pub velocities: f64,
+    /// Self-collision.
+    pub self_collision: f64,
+}
+
+impl StageTimes {
+    /// Sum of all stages.
+    pub fn total(&self) -> f64 {
+        self.body
+            + self.detect
+            + self.predict
+            + self.solve
+            + self.collide
+            + self.velocities
+            + self.self_collision
+    }
+}
+
+/// What one frame did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameStats {
+    /// Largest particle displacement over the frame (m).
+    pub max_displacement: f32,
+    /// Kinetic energy at the end of the frame (J).
+    pub kinetic_energy: f32,
+    /// Particles with a body contact this frame.
+    pub contacts: usize,
+    /// False if any position became non-finite.
+    pub finite: bool,
+}
+
+/// Solver state of one cloth.
+#[derive(Debug, Clone)]
+pub struct Solver<'m> {
+    /// The cloth.
+    pub model: &'m ClothModel,
+    /// Parameters.
+    pub config: SimConfig,
+    /// Positions (m).
+    pub x: Vec<Vec3>,
+    /// Velocities (m/s).
+    pub v: Vec<Vec3>,
+    /// Use rayon inside a frame (results are identical either way).
+    pub parallel: bool,
+    /// Time per stage so far.
+    pub times: StageTimes,
+    /// Substeps run so far.
+    pub substeps_run: u64,
+    x_before: Vec<Vec3>,
+    x_frame: Vec<Vec3>,
+    contacts: Vec<Option<Contact>>,
+    deltas: Vec<(Vec3, Vec3)>,
+    self_grid: super::self_collision::SelfCollision,
+}
+
+impl<'m> Solver<'m> {
+    /// A solver with the cloth at `x` and at rest.
+    pub fn new(model: &'m ClothModel, config: &SimConfig, x: Vec<Vec3>) -> Self {
+        assert_eq!(x.len(), model.len());
+        let n = x.len();
+        Self {
+            model,
+            config: config.clone(),
+            v: vec![Vec3::ZERO; n],
+            x_before: x.clone(),
+            x_frame: x.clone(),
+            x,
+            parallel: true,
+            times: StageTimes::default(),
+            substeps_run: 0,
+            contacts: vec![None; n],
+            deltas: Vec::new(),
+            self_grid: super::self_collision::SelfCollision::new(model, config.self_distance),
+        }
+    }
+
+    /// Advances one frame against `body`, whose positions move from its frame start to its
+    /// frame end (see [`BodyCollider::advance`] and [`BodyCollider::hold`]).
+    pub fn frame(&mut self, body: &BodyCollider) -> FrameStats {
+        let c = self.config.clone();
+        let h = c.substep_dt();
+        let frame_dt = c.frame_dt();
+        self.x_frame.copy_from_slice(&self.x);
+
+        // 1. detect
+        let t0 = Instant::now();
+        let reach = c.thickness + c.margin + body.travel();
+        let (x, v) = (&self.x, &self.v);
+        let detect = |(i, slot): (usize, &mut Option<Contact>)| {
+            let travel = v[i].length() * frame_dt;
+            *slot = body.closest(x[i], reach + travel).map(|hit| hit.contact);
+        };
+        if self.parallel {
+            self.contacts.par_iter_mut().enumerate().for_each(detect);
+        } else {
+            self.contacts.iter_mut().enumerate().for_each(detect);
+        }
+        self.times.detect += t0.elapsed().as_secs_f64();
+        let n_contacts = self.contacts.iter().filter(|c| c.is_some()).count();
+
+        let g = c.gravity();
+        let vmax = c.max_velocity;
+        let damp = (-c.damping * h).exp();
+        let inv_h2 = 1.0 / (h * h);
+        for s in 0..c.substeps {
+            // 2.1 predict
+            let t = Instant::now();
+            self.x_before.copy_from_slice(&self.x);
+            for ((x, v), w) in self
+                .x
+                .iter_mut()
+                .zip(self.v.iter_mut())
+                .zip(&self.model.inv_mass)
+            {
+                if *w == 0.0 {
+                    *v = Vec3::ZERO;
+                    continue;
+                }
+                *v += g * h;
+                let speed = v.length();
+                if speed > vmax {
+                    *v *= vmax / speed;
+                }
+                *x += *v * h;
+            }
+            self.times.predict += t.elapsed().as_secs_f64();
+
+            // 2.2 solve
+            let t = Instant::now();
+            self.solve_distance(inv_h2);
+            self.solve_dihedral(inv_h2);
+            self.times.solve += t.elapsed().as_secs_f64();
+
+            // 2.3 collide
+            let t = Instant::now();
+            let (tb, te) = (
+                s as f32 / c.substeps as f32,
+                (s + 1) as f32 / c.substeps as f32,
+            );
+            self.collide(body, tb, te);
+            self.times.collide += t.elapsed().as_secs_f64();
+
+            if self.config.self_collision {
+                let t = Instant::now();
+                self.self_grid.solve(&mut self.x, &self.model.inv_mass);
+                self.times.self_collision += t.elapsed().as_secs_f64();
+            }
+
+            // 2.4 velocities
+            let t = Instant::now();
+            for ((v, x), xb) in self.v.iter_mut().zip(&self.x).zip(&self.x_before) {
+                *v = (*x - *xb) / h * damp;
+            }
+            self.times.velocities += t.elapsed().as_secs_f64();
+            self.substeps_run += 1;
+        }
+
+        // 3. measure
+        let mut max_d2 = 0.0f32;
+        let mut ke = 0.0f32;
+        let mut finite = true;
+        for i in 0..self.x.len() {
+            finite &= self.x[i].is_finite();
+            max_d2 = max_d2.max(self.x[i].distance_squared(self.x_frame[i]));
+            ke += 0.5 * self.model.mass[i] * self.v[i].length_squared();
+        }
+        FrameStats {
+            max_displacement: max_d2.sqrt(),
+            kinetic_energy: ke,
+            contacts: n_contacts,
+            finite,
+        }
+    }
+
+    fn solve_distance(&mut self, inv_h2: f32) {
+        let m = self.model;
+        for range in &m.distance_colours {
+            let cs = &m.distance[range.clone()];
+            if self.parallel && cs.len() >= PARALLEL_MIN {
+                let x = &self.x;
+                let w = &m.inv_mass;
+                cs.par_iter()
+                    .map(|c| {
+                        let (i, j) = (c.i as usize, c.j as usize);
+                        distance::solve(c, x[i], x[j], w[i], w[j], inv_h2)
+                    })
+                    .collect_into_vec(&mut self.deltas);
+                for (c, (di, dj)) in cs.iter().zip(&self.deltas) {
+                    self.x[c.i as usize] += *di;
+                    self.x[c.j as usize] += *dj;
+                }
+            } else {
+                for c in cs {
+                    let (i, j) = (c.i as usize, c.j as usize);
+                    let (di, dj) = distance::solve(
+                        c,
+                        self.x[i],
+                        self.x[j],
+                        m.inv_mass[i],
+                        m.inv_mass[j],
+                        inv_h2,
+                    );
+                    self.x[i] += di;
+                    self.x[j] += dj;
+                }
+            }
+        }
+    }
+
+    fn solve_dihedral(&mut self, inv_h2: f32) {
+        let m = self.model;
+        for range in &m.dihedral_colours {
+            for c in &m.dihedral[range.clone()] {
+                let p = c.p.map(|i| i as usize);
+                let dx = dihedral::solve(c, p.map(|i| self.x[i]), p.map(|i| m.inv_mass[i]), inv_h2);
+                for k in 0..4 {
+                    self.x[p[k]] += dx[k];
+                }
+            }
+        }
+    }
+
+    /// Pushes particles out to `thickness` along the contact normal at time `te` of the
+    /// frame, then removes tangential motion relative to the body up to `friction` times the
+    /// push (static) or by that much (kinetic).
+    fn collide(&mut self, body: &BodyCollider, tb: f32, te: f32) {
+        let thickness = self.config.thickness;
+        let mu = self.config.friction;
+        let w = &self.model.inv_mass;
+        let one = |(i, (x, (xb, contact))): (usize, (&mut Vec3, (&Vec3, &Option<Contact>)))| {
+            let Some(c) = contact else { return };
+            if w[i] == 0.0 {
+                return;
+            }
+            let q = body.point_at(c, te);
+            let n = body.normal_at(c, te);
+            let d = (*x - q).dot(n);
+            if d >= thickness {
+                return;
+            }
+            let push = thickness - d;
+            *x += n * push;
+            // Friction against the body's motion over this substep.
+            let rel = (*x - *xb) - (q - body.point_at(c, tb));
+            let tangential = rel - n * rel.dot(n);
+            let tl = tangential.length();
+            if tl > 0.0 {
+                let limit = mu * push;
+                *x -= if tl <= limit {
+                    tangential
+                } else {
+                    tangential * (limit / tl)
+                };
+            }
+        };
+        if self.parallel {
+            self.x
+                .par_iter_mut()
+                .zip(self.x_before.par_iter().zip(self.contacts.par_iter()))
+                .enumerate()
+                .for_each(one);
+        } else {
+            self.x
+                .iter_mut()
+                .zip(self.x_before.iter().zip(self.contacts.iter()))
+                .enumerate()
+                .for_each(one);
+        }
+    }
+}

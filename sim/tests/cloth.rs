@@ -1,0 +1,278 @@
+//! The cloth simulator against closed forms and physical expectations, with tolerances.
+
+use glam::{Quat, Vec3};
+use sim::cloth::collision::BodyCollider;
+use sim::cloth::drape::{self, FnMotion, StaticBody};
+use sim::cloth::{ClothModel, SimConfig, Solver};
+use sim::mesh::{TriMesh, primitives};
+
+fn far_away_body() -> StaticBody {
+    let s = primitives::uv_sphere(Vec3::new(100.0, 0.0, 0.0), 0.1, 8, 4);
+    StaticBody {
+        vertices: s.vertices,
+        triangles: s.triangles,
+    }
+}
+
+fn mean_distance(a: &[Vec3], b: &[Vec3]) -> f32 {
+    a.iter().zip(b).map(|(p, q)| p.distance(*q)).sum::<f32>() / a.len() as f32
+}
+
+#[test]
+fn free_fall_follows_half_g_t_squared() {
+    let config = SimConfig {
+        damping: 0.0,
+        max_velocity: 100.0,
+        ..Default::default()
+    };
+    let cloth = primitives::grid(Vec3::ZERO, Vec3::X * 0.5, Vec3::Z * 0.5, 10, 10);
+    let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+    let far = far_away_body();
+    let body = BodyCollider::new(&far.vertices, &far.triangles, config.margin);
+    let mut solver = Solver::new(&model, &config, cloth.vertices.clone());
+    let frames = 30;
+    for _ in 0..frames {
+        solver.frame(&body);
+    }
+    let t = frames as f32 / config.fps;
+    let expected = 0.5 * 9.81 * t * t;
+    for (x, x0) in solver.x.iter().zip(&cloth.vertices) {
+        let fall = x0.y - x.y;
+        assert!(
+            (fall - expected).abs() < 0.01 * expected,
+            "fell {fall} m, expected {expected} m"
+        );
+        assert!((x.x - x0.x).abs() < 1e-5 && (x.z - x0.z).abs() < 1e-5);
+    }
+}
+
+/// A 0.4 x 0.4 m cloth hanging from its top edge.
+fn hanging(config: &SimConfig) -> (ClothModel, Vec<Vec3>) {
+    let n = 20;
+    let cloth = primitives::grid(
+        Vec3::new(-0.2, 0.0, 0.0),
+        Vec3::X * 0.4,
+        Vec3::Y * -0.4,
+        n,
+        n,
+    );
+    let pinned: Vec<u32> = (0..=n).collect();
+    let model = ClothModel::new(&cloth, config, &pinned).unwrap();
+    let d = drape::drape(
+        &model,
+        &cloth.vertices,
+        &far_away_body(),
+        config,
+        false,
+        &mut |_| {},
+    );
+    assert!(d.report.converged, "{:?}", d.report.failure);
+    (model, d.positions)
+}
+
+#[test]
+fn pinned_hanging_cloth_keeps_edges_within_the_stretch_limit() {
+    let config = SimConfig::default();
+    let (model, x) = hanging(&config);
+    let s = drape::strain(&model, &x);
+    assert!(s.max <= config.stretch_limit + 1e-3, "max strain {}", s.max);
+    // It hangs: the bottom edge stays about 0.4 m below the pins.
+    let lowest = x.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    assert!((-0.42..-0.39).contains(&lowest), "lowest point {lowest}");
+    // And it is not crumpled: compression stays within its limit too.
+    let shortest = model
+        .edges
+        .iter()
+        .map(|&[a, b]| {
+            x[a as usize].distance(x[b as usize])
+                / model.rest[a as usize].distance(model.rest[b as usize])
+        })
+        .fold(f32::MAX, f32::min);
+    assert!(
+        shortest >= 1.0 - config.compression_limit - 1e-3,
+        "{shortest}"
+    );
+}
+
+/// A 1 x 1 m cloth dropped from 10 cm onto `collider`; returns the model, positions and the
+/// signed distances before the final push-out.
+fn drop_on(collider: &TriMesh, config: &SimConfig, top: f32) -> (ClothModel, drape::DrapeResult) {
+    let cloth = primitives::grid(Vec3::new(-0.5, top + 0.1, -0.5), Vec3::X, Vec3::Z, 40, 40);
+    let model = ClothModel::new(&cloth, config, &[]).unwrap();
+    let body = StaticBody {
+        vertices: collider.vertices.clone(),
+        triangles: collider.triangles.clone(),
+    };
+    let d = drape::drape(&model, &cloth.vertices, &body, config, true, &mut |_| {});
+    (model, d)
+}
+
+#[test]
+fn cloth_dropped_on_a_sphere_rests_outside_it() {
+    let config = SimConfig::default();
+    let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 64, 32);
+    let (_, d) = drop_on(&sphere, &config, 0.3);
+    let r = &d.report;
+    assert!(r.converged, "{:?}", r.failure);
+    assert!(
+        r.penetration_before_pushout.max_depth <= config.thickness,
+        "{:?}",
+        r.penetration_before_pushout
+    );
+    // Draped over the top: the particle above the pole rests at radius + thickness.
+    let top = d.positions.iter().map(|p| p.y).fold(f32::MIN, f32::max);
+    assert!((top - 0.3 - config.thickness).abs() < 0.003, "top at {top}");
+    // It hangs around the sphere, well below its equator at the corners.
+    let lowest = d.positions.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    assert!(lowest < -0.1, "lowest {lowest}");
+}
+
+#[test]
+fn cloth_dropped_on_a_box_rests_outside_it() {
+    let config = SimConfig::default();
+    let cube = primitives::cuboid(Vec3::ZERO, Vec3::splat(0.25), 4);
+    let (_, d) = drop_on(&cube, &config, 0.25);
+    let r = &d.report;
+    assert!(r.converged, "{:?}", r.failure);
+    assert!(
+        r.penetration_before_pushout.max_depth <= config.thickness,
+        "{:?}",
+        r.penetration_before_pushout
+    );
+    // The middle lies flat on the top face.
+    let centre = d
+        .positions
+        .iter()
+        .filter(|p| p.x.abs() < 0.1 && p.z.abs() < 0.1);
+    for p in centre {
+        assert!((p.y - 0.25 - config.thickness).abs() < 0.002, "{p}");
+    }
+}
+
+#[test]
+fn tube_around_a_fast_cylinder_never_tunnels() {
+    // A cylinder (r = 10 cm) inside a cloth tube (r = 12 cm) moves sideways at 3 m/s and
+    // stops: the tube is dragged along, no particle ever gets inside.
+    let config = SimConfig {
+        gravity: [0.0; 3],
+        ..Default::default()
+    };
+    let cyl = primitives::cylinder(Vec3::new(0.0, -0.5, 0.0), 0.1, 1.0, 48, 8);
+    let tube = primitives::tube(Vec3::new(0.0, -0.3, 0.0), 0.12, 0.6, 48, 24);
+    let model = ClothModel::new(&tube, &config, &[]).unwrap();
+    let frames = 40;
+    let speed = 3.0 / config.fps;
+    let cyl_vertices = cyl.vertices.clone();
+    let motion = FnMotion {
+        frames,
+        at: move |k| {
+            let dx = speed * k.min(30) as f32;
+            cyl_vertices.iter().map(|v| *v + Vec3::X * dx).collect()
+        },
+        triangles: cyl.triangles.clone(),
+    };
+    let mut body = BodyCollider::new(&cyl.vertices, &cyl.triangles, config.margin);
+    let mut solver = Solver::new(&model, &config, tube.vertices.clone());
+    use sim::cloth::drape::BodyMotion;
+    let mut deepest = 0.0f32;
+    for k in 1..=frames {
+        body.advance(&motion.at(k));
+        solver.frame(&body);
+        for p in &solver.x {
+            if let Some(d) = body.signed_distance(*p, 0.05) {
+                deepest = deepest.max(-d);
+            }
+        }
+    }
+    assert!(
+        deepest <= config.thickness,
+        "a particle got {deepest} m inside the cylinder"
+    );
+    // The tube went along with the cylinder (0.9 m to the right).
+    let mean_x = solver.x.iter().map(|p| p.x).sum::<f32>() / solver.x.len() as f32;
+    assert!((mean_x - 1.5).abs() < 0.1, "tube centre at x = {mean_x}");
+}
+
+/// A 20 x 20 cm patch on a plane tilted by `degrees` about z, with friction `mu`;
+/// returns how far it slid in 1.5 s.
+fn slide(degrees: f32, mu: f32) -> f32 {
+    let config = SimConfig {
+        friction: mu,
+        damping: 0.0,
+        ..Default::default()
+    };
+    let rot = Quat::from_rotation_z(degrees.to_radians());
+    let slab = primitives::cuboid(Vec3::new(0.0, -0.05, 0.0), Vec3::new(2.0, 0.05, 1.0), 16);
+    let slab_v: Vec<Vec3> = slab.vertices.iter().map(|v| rot * *v).collect();
+    let patch = primitives::grid(
+        Vec3::new(-0.1, 0.0032, -0.1),
+        Vec3::X * 0.2,
+        Vec3::Z * 0.2,
+        10,
+        10,
+    );
+    let start: Vec<Vec3> = patch.vertices.iter().map(|v| rot * *v).collect();
+    let model = ClothModel::new(
+        &TriMesh::new(start.clone(), patch.triangles.clone()),
+        &config,
+        &[],
+    )
+    .unwrap();
+    let body = BodyCollider::new(&slab_v, &slab.triangles, config.margin);
+    let mut solver = Solver::new(&model, &config, start.clone());
+    for _ in 0..90 {
+        solver.frame(&body);
+    }
+    mean_distance(&solver.x, &start)
+}
+
+#[test]
+fn friction_decides_between_sliding_and_sticking() {
+    // tan 20 degrees = 0.36.
+    let stuck = slide(20.0, 0.6);
+    let slid = slide(20.0, 0.1);
+    assert!(stuck < 0.005, "with mu = 0.6 the patch moved {stuck} m");
+    // Sliding with friction: a = g (sin - mu cos) = 2.43 m/s^2, 2.7 m in 1.5 s.
+    assert!(slid > 1.0, "with mu = 0.1 the patch moved only {slid} m");
+}
+
+#[test]
+fn same_bits_on_one_thread_and_on_two() {
+    let config = SimConfig::default();
+    let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 64, 32);
+    let cloth = primitives::grid(Vec3::new(-0.5, 0.4, -0.5), Vec3::X, Vec3::Z, 60, 60);
+    let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+    assert!(
+        model.distance_colours.iter().any(|r| r.len() >= 1024),
+        "the parallel path must run"
+    );
+    let body = StaticBody {
+        vertices: sphere.vertices,
+        triangles: sphere.triangles,
+    };
+    let run = |threads: usize, parallel: bool| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            drape::drape(
+                &model,
+                &cloth.vertices,
+                &body,
+                &config,
+                parallel,
+                &mut |_| {},
+            )
+            .positions
+        })
+    };
+    let one = run(1, false);
+    let two = run(2, true);
+    assert!(
+        one.iter()
+            .zip(&two)
+            .all(|(a, b)| a.to_array() == b.to_array()),
+        "results differ between thread counts"
+    );
+}
