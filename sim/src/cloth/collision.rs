@@ -304,9 +304,10 @@ impl BodyCollider {
         a.lerp(b, t).normalize_or_zero()
     }
 
-    /// The closest point on the body (at the end of the frame) to `p` among triangles
-    /// whose swept boxes come within `radius` of `p`.
-    pub fn closest(&self, p: Vec3, radius: f32) -> Option<Hit> {
+    /// The triangle closest to `p` at the end of the frame among those whose swept,
+    /// margin-inflated boxes come within `radius` of `p`: squared distance, triangle,
+    /// barycentrics and feature.
+    fn nearest_candidate(&self, p: Vec3, radius: f32) -> Option<(f32, u32, [f32; 3], Feature)> {
         let r = Vec3A::splat(radius);
         let query = Aabb::new(to_a(p) - r, to_a(p) + r);
         let mut best: Option<(f32, u32, [f32; 3], Feature)> = None;
@@ -325,7 +326,27 @@ impl BodyCollider {
             }
             true
         });
-        let (d2, tri, bary, feature) = best?;
+        best
+    }
+
+    /// The contact a particle at `p` may meet this frame: the body triangle nearest at the
+    /// end of the frame among those whose swept boxes (inflated by the margin) come within
+    /// `reach` of `p`. No distance cut: a far contact only constrains a particle that gets
+    /// closer than the thickness.
+    pub fn contact(&self, p: Vec3, reach: f32) -> Option<Contact> {
+        self.nearest_candidate(p, reach)
+            .map(|(_, tri, bary, feature)| Contact { tri, bary, feature })
+    }
+
+    /// Margin the BVH boxes are inflated by (m).
+    pub fn margin(&self) -> f32 {
+        self.margin
+    }
+
+    /// The closest point on the body (at the end of the frame) to `p`, if it lies within
+    /// `radius`.
+    pub fn closest(&self, p: Vec3, radius: f32) -> Option<Hit> {
+        let (d2, tri, bary, feature) = self.nearest_candidate(p, radius)?;
         if d2 > radius * radius {
             return None;
         }

@@ -14,6 +14,7 @@ pub mod config;
 pub mod constraints;
 pub mod drape;
 pub mod model;
+pub mod scene;
 pub mod self_collision;
 pub mod solver;
 

@@ -1,8 +1,9 @@
 //! The time step. One frame, as a list of stages:
 //!
-//! 1. **detect**: find each particle's closest body triangle within its reach this frame
-//!    (thickness + margin + its own travel + the body's travel), once per frame, through
-//!    the BVH;
+//! 1. **detect**: find each particle's nearest body triangle among those whose swept boxes
+//!    (inflated by the margin) it can reach this frame (thickness + its own travel), once
+//!    per frame, through the BVH; a particle's last search is reused while the body stands
+//!    still and the particle stays inside that search's slack;
 //! 2. for each substep (`h = frame / substeps`):
 //!    1. **predict**: `v += g h`, clamp the speed, `x += v h`;
 //!    2. **solve**: one Gauss-Seidel sweep over the constraint colours (XPBD);
@@ -12,9 +13,9 @@
 //! 3. **measure**: largest displacement over the frame and kinetic energy (the rest test
 //!    of the drape protocol uses them).
 //!
-//! Determinism: colours are solved in a fixed order, constraints of a colour touch
-//! disjoint particles (so solving them in parallel gives the same bits as in sequence),
-//! and no floating-point sum is split across threads.
+//! Determinism: the constraint sweep runs in a fixed colour order on one thread; detection
+//! and collision treat each particle on its own (any thread count gives the same bits);
+//! no floating-point sum is split across threads.
 
 use std::time::Instant;
 
@@ -24,11 +25,18 @@ use serde::Serialize;
 
 use super::SimConfig;
 use super::collision::{BodyCollider, Contact};
-use super::constraints::{dihedral, distance};
+use super::constraints::dihedral;
+use super::constraints::distance::Prepared;
 use super::model::ClothModel;
 
-/// Colours with fewer constraints than this are solved on one thread.
-const PARALLEL_MIN: usize = 1024;
+/// A contact's point and pseudo-normal at the start and end of a frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Plane {
+    q0: Vec3,
+    q1: Vec3,
+    n0: Vec3,
+    n1: Vec3,
+}
 
 /// Wall time spent in each stage (s).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
@@ -95,7 +103,13 @@ pub struct Solver<'m> {
     x_before: Vec<Vec3>,
     x_frame: Vec<Vec3>,
     contacts: Vec<Option<Contact>>,
-    deltas: Vec<(Vec3, Vec3)>,
+    /// Each contact's point and normal at the frame's start and end (the point moves
+    /// linearly in between: its barycentrics are fixed for the frame).
+    planes: Vec<Option<Plane>>,
+    /// Where and with which radius each particle last searched for contacts.
+    searched: Vec<(Vec3, f32)>,
+    /// Distance constraints prepared for this substep length, in colour order.
+    prepared: Vec<Prepared>,
     self_grid: super::self_collision::SelfCollision,
 }
 
@@ -115,7 +129,17 @@ impl<'m> Solver<'m> {
             times: StageTimes::default(),
             substeps_run: 0,
             contacts: vec![None; n],
-            deltas: Vec::new(),
+            planes: vec![None; n],
+            searched: vec![(Vec3::ZERO, 0.0); n],
+            prepared: {
+                let h = config.substep_dt();
+                let w = &model.inv_mass;
+                model
+                    .distance
+                    .iter()
+                    .map(|c| Prepared::new(c, w[c.i as usize], w[c.j as usize], 1.0 / (h * h)))
+                    .collect()
+            },
             self_grid: super::self_collision::SelfCollision::new(model, config.self_distance),
         }
     }
@@ -130,16 +154,51 @@ impl<'m> Solver<'m> {
 
         // 1. detect
         let t0 = Instant::now();
-        let reach = c.thickness + c.margin + body.travel();
-        let (x, v) = (&self.x, &self.v);
-        let detect = |(i, slot): (usize, &mut Option<Contact>)| {
+        // A particle's last search still holds while the body stands still and the
+        // particle stays within the slack of that search: everything within its reach now
+        // was within the radius searched then.
+        let still = body.travel() == 0.0;
+        let (x, v, thickness, margin) = (&self.x, &self.v, c.thickness, body.margin());
+        let detect = |(i, (slot, searched)): (usize, (&mut Option<Contact>, &mut (Vec3, f32)))| {
             let travel = v[i].length() * frame_dt;
-            *slot = body.closest(x[i], reach + travel).map(|hit| hit.contact);
+            if still && x[i].distance(searched.0) + travel + thickness <= searched.1 + margin {
+                return;
+            }
+            let radius = thickness + travel;
+            *slot = body.contact(x[i], radius);
+            *searched = (x[i], radius);
         };
         if self.parallel {
-            self.contacts.par_iter_mut().enumerate().for_each(detect);
+            self.contacts
+                .par_iter_mut()
+                .zip(self.searched.par_iter_mut())
+                .enumerate()
+                .for_each(detect);
         } else {
-            self.contacts.iter_mut().enumerate().for_each(detect);
+            self.contacts
+                .iter_mut()
+                .zip(self.searched.iter_mut())
+                .enumerate()
+                .for_each(detect);
+        }
+        let planes = |(slot, c): (&mut Option<Plane>, &Option<Contact>)| {
+            *slot = c.map(|c| Plane {
+                q0: body.point_at(&c, 0.0),
+                q1: body.point_at(&c, 1.0),
+                n0: body.normal_at(&c, 0.0),
+                n1: body.normal_at(&c, 1.0),
+            });
+        };
+        if self.parallel {
+            self.planes
+                .par_iter_mut()
+                .zip(self.contacts.par_iter())
+                .for_each(planes);
+        } else {
+            self.planes
+                .iter_mut()
+                .zip(self.contacts.iter())
+                .for_each(planes);
         }
         self.times.detect += t0.elapsed().as_secs_f64();
         let n_contacts = self.contacts.iter().filter(|c| c.is_some()).count();
@@ -172,8 +231,9 @@ impl<'m> Solver<'m> {
             self.times.predict += t.elapsed().as_secs_f64();
 
             // 2.2 solve
+
             let t = Instant::now();
-            self.solve_distance(inv_h2);
+            self.solve_distance();
             self.solve_dihedral(inv_h2);
             self.times.solve += t.elapsed().as_secs_f64();
 
@@ -183,7 +243,7 @@ impl<'m> Solver<'m> {
                 s as f32 / c.substeps as f32,
                 (s + 1) as f32 / c.substeps as f32,
             );
-            self.collide(body, tb, te);
+            self.collide(tb, te);
             self.times.collide += t.elapsed().as_secs_f64();
 
             if self.config.self_collision {
@@ -218,38 +278,18 @@ impl<'m> Solver<'m> {
         }
     }
 
-    fn solve_distance(&mut self, inv_h2: f32) {
-        let m = self.model;
-        for range in &m.distance_colours {
-            let cs = &m.distance[range.clone()];
-            if self.parallel && cs.len() >= PARALLEL_MIN {
-                let x = &self.x;
-                let w = &m.inv_mass;
-                cs.par_iter()
-                    .map(|c| {
-                        let (i, j) = (c.i as usize, c.j as usize);
-                        distance::solve(c, x[i], x[j], w[i], w[j], inv_h2)
-                    })
-                    .collect_into_vec(&mut self.deltas);
-                for (c, (di, dj)) in cs.iter().zip(&self.deltas) {
-                    self.x[c.i as usize] += *di;
-                    self.x[c.j as usize] += *dj;
-                }
-            } else {
-                for c in cs {
-                    let (i, j) = (c.i as usize, c.j as usize);
-                    let (di, dj) = distance::solve(
-                        c,
-                        self.x[i],
-                        self.x[j],
-                        m.inv_mass[i],
-                        m.inv_mass[j],
-                        inv_h2,
-                    );
-                    self.x[i] += di;
-                    self.x[j] += dj;
-                }
-            }
+    /// One sweep over the distance constraints in colour order. Deliberately on one
+    /// thread: splitting a colour across the two cores of the development machine made the
+    /// sweep twice as slow on a 10k-particle tube (per-colour synchronisation 16 times a
+    /// substep, and cache lines shared between threads), both with a gather-apply scheme
+    /// and with relaxed atomics. Threads pay off in detection and collision, and across
+    /// drapes in dataset generation.
+    fn solve_distance(&mut self) {
+        for c in &self.prepared {
+            let (i, j) = (c.i as usize, c.j as usize);
+            let (di, dj) = c.solve(self.x[i], self.x[j]);
+            self.x[i] += di;
+            self.x[j] += dj;
         }
     }
 
@@ -269,17 +309,17 @@ impl<'m> Solver<'m> {
     /// Pushes particles out to `thickness` along the contact normal at time `te` of the
     /// frame, then removes tangential motion relative to the body up to `friction` times the
     /// push (static) or by that much (kinetic).
-    fn collide(&mut self, body: &BodyCollider, tb: f32, te: f32) {
+    fn collide(&mut self, tb: f32, te: f32) {
         let thickness = self.config.thickness;
         let mu = self.config.friction;
         let w = &self.model.inv_mass;
-        let one = |(i, (x, (xb, contact))): (usize, (&mut Vec3, (&Vec3, &Option<Contact>)))| {
-            let Some(c) = contact else { return };
+        let one = |(i, (x, (xb, plane))): (usize, (&mut Vec3, (&Vec3, &Option<Plane>)))| {
+            let Some(p) = plane else { return };
             if w[i] == 0.0 {
                 return;
             }
-            let q = body.point_at(c, te);
-            let n = body.normal_at(c, te);
+            let q = p.q0.lerp(p.q1, te);
+            let n = p.n0.lerp(p.n1, te).normalize_or_zero();
             let d = (*x - q).dot(n);
             if d >= thickness {
                 return;
@@ -287,7 +327,7 @@ impl<'m> Solver<'m> {
             let push = thickness - d;
             *x += n * push;
             // Friction against the body's motion over this substep.
-            let rel = (*x - *xb) - (q - body.point_at(c, tb));
+            let rel = (*x - *xb) - (q - p.q0.lerp(p.q1, tb));
             let tangential = rel - n * rel.dot(n);
             let tl = tangential.length();
             if tl > 0.0 {
@@ -302,13 +342,13 @@ impl<'m> Solver<'m> {
         if self.parallel {
             self.x
                 .par_iter_mut()
-                .zip(self.x_before.par_iter().zip(self.contacts.par_iter()))
+                .zip(self.x_before.par_iter().zip(self.planes.par_iter()))
                 .enumerate()
                 .for_each(one);
         } else {
             self.x
                 .iter_mut()
-                .zip(self.x_before.iter().zip(self.contacts.iter()))
+                .zip(self.x_before.iter().zip(self.planes.iter()))
                 .enumerate()
                 .for_each(one);
         }

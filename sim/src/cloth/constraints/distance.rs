@@ -34,6 +34,66 @@ pub struct Distance {
     pub max: f32,
 }
 
+/// A distance constraint prepared for a fixed substep length and fixed masses: the XPBD
+/// update of a constraint solved once per substep is `len' = len - k (len - rest)` with
+/// `k = w / (w + alpha / h^2)`, `w = w_i + w_j`, clamped to `[min, max]`; particle i takes
+/// the share `w_i / w` of the change and j the rest.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Prepared {
+    /// First particle.
+    pub i: u32,
+    /// Second particle.
+    pub j: u32,
+    /// Rest length (m).
+    pub rest: f32,
+    /// Stiffness factor `w / (w + alpha / h^2)` in [0, 1].
+    pub k: f32,
+    /// Shortest allowed length (m).
+    pub min: f32,
+    /// Longest allowed length (m).
+    pub max: f32,
+    /// Share of particle i, `w_i / w` (0 if both particles are pinned).
+    pub share_i: f32,
+    /// Share of particle j.
+    pub share_j: f32,
+}
+
+impl Prepared {
+    /// Prepares `c` for inverse masses `wi`, `wj` and `1 / h^2 = inv_h2`.
+    pub fn new(c: &Distance, wi: f32, wj: f32, inv_h2: f32) -> Self {
+        let w = wi + wj;
+        let (k, share_i, share_j) = if w == 0.0 {
+            (0.0, 0.0, 0.0)
+        } else {
+            (w / (w + c.compliance * inv_h2), wi / w, wj / w)
+        };
+        Self {
+            i: c.i,
+            j: c.j,
+            rest: c.rest,
+            k,
+            min: c.min,
+            max: c.max,
+            share_i,
+            share_j,
+        }
+    }
+
+    /// Corrections `(dx_i, dx_j)` at positions `xi`, `xj`; the same as [`solve`].
+    #[inline]
+    pub fn solve(&self, xi: Vec3, xj: Vec3) -> (Vec3, Vec3) {
+        let d = xi - xj;
+        let len2 = d.length_squared();
+        if len2 < 1e-24 {
+            return (Vec3::ZERO, Vec3::ZERO);
+        }
+        let len = len2.sqrt();
+        let target = (len - self.k * (len - self.rest)).clamp(self.min, self.max);
+        let n = d * ((target - len) / len);
+        (n * self.share_i, n * -self.share_j)
+    }
+}
+
 /// Corrections `(dx_i, dx_j)` of one distance constraint at positions `xi`, `xj`.
 #[inline]
 pub fn solve(c: &Distance, xi: Vec3, xj: Vec3, wi: f32, wj: f32, inv_h2: f32) -> (Vec3, Vec3) {
@@ -113,6 +173,31 @@ mod tests {
         let limited = Distance { max: 1.1, ..soft };
         let (di, dj) = solve(&limited, Vec3::ZERO, Vec3::X * 2.0, 1.0, 1.0, 1.0);
         assert!(((Vec3::X * 2.0 + dj - di).length() - 1.1).abs() < 1e-5);
+    }
+
+    #[test]
+    fn prepared_form_matches_the_direct_update() {
+        let c = Distance {
+            i: 0,
+            j: 1,
+            rest: 1.0,
+            compliance: 0.3,
+            min: 0.8,
+            max: 1.05,
+        };
+        let cases = [
+            (Vec3::new(1.3, 0.2, 0.0), 1.0, 2.0),
+            (Vec3::new(0.5, 0.0, 0.1), 0.0, 1.0),
+            (Vec3::new(1.02, 0.0, 0.0), 3.0, 0.5),
+        ];
+        for (xj, wi, wj) in cases {
+            let (a, b) = solve(&c, Vec3::ZERO, xj, wi, wj, 10.0);
+            let (p, q) = Prepared::new(&c, wi, wj, 10.0).solve(Vec3::ZERO, xj);
+            assert!(
+                a.distance(p) < 1e-6 && b.distance(q) < 1e-6,
+                "{a} {p} / {b} {q}"
+            );
+        }
     }
 
     #[test]
