@@ -1,7 +1,9 @@
 //! Command-line definitions and dispatch.
 
+mod bench;
 mod body;
 mod pose_spec;
+mod simulate;
 
 use std::path::PathBuf;
 
@@ -27,6 +29,11 @@ pub enum Command {
     /// Build a shaped, posed MakeHuman body: OBJ and PNG; import the body asset; check the
     /// pose prior.
     Body(body::BodyArgs),
+    /// Drape a garment on a shaped, posed body with the cloth simulator: OBJ, PNG and a
+    /// quality report.
+    Sim(Box<simulate::SimArgs>),
+    /// Scene benchmarks that print timings and quality figures.
+    Bench(bench::BenchArgs),
 }
 
 /// Options every command shares.
@@ -48,5 +55,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     };
     match cli.command {
         Command::Body(args) => body::run(args, &ctx),
+        Command::Sim(args) => simulate::run(*args, &ctx),
+        Command::Bench(args) => bench::run(args, &ctx),
     }
 }

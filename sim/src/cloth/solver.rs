@@ -278,13 +278,14 @@ impl<'m> Solver<'m> {
         }
     }
 
-    /// One sweep over the distance constraints in colour order. Deliberately on one
+    /// One sweep over the distance constraints in colour order (stage 2.2 without the
+    /// optional dihedral constraints). Deliberately on one
     /// thread: splitting a colour across the two cores of the development machine made the
     /// sweep twice as slow on a 10k-particle tube (per-colour synchronisation 16 times a
     /// substep, and cache lines shared between threads), both with a gather-apply scheme
     /// and with relaxed atomics. Threads pay off in detection and collision, and across
     /// drapes in dataset generation.
-    fn solve_distance(&mut self) {
+    pub fn solve_distance(&mut self) {
         for c in &self.prepared {
             let (i, j) = (c.i as usize, c.j as usize);
             let (di, dj) = c.solve(self.x[i], self.x[j]);

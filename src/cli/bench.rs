@@ -1,0 +1,145 @@
+//! `drape bench`: scene benchmarks that print the figures users care about.
+
+use clap::{Args, Subcommand};
+use sim::body::ShapeParams;
+use sim::cloth::drape::{self, BodyMorph, DrapeReport};
+use sim::cloth::{ClothModel, SimConfig};
+
+use super::Context;
+use super::body::load;
+
+/// `drape bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    command: BenchCommand,
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// Drape the garment-like tube (10,112 particles) on the default body morphing to poses
+    /// of the prior, on one thread and on all cores; prints time per drape and per stage,
+    /// peak memory and the quality figures of each drape.
+    Sim {
+        /// Number of poses (random:SEED onwards).
+        #[arg(long, default_value_t = 3)]
+        poses: u64,
+        /// Seed of the first pose.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Simulator configuration TOML (default: configs/sim/default.toml).
+        #[arg(long, value_name = "FILE.toml")]
+        config: Option<std::path::PathBuf>,
+    },
+}
+
+/// Peak resident memory of this process (MB), from /proc where there is one.
+fn peak_memory_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// Runs `drape bench`.
+pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
+    let BenchCommand::Sim {
+        poses,
+        seed,
+        config,
+    } = args.command;
+    let config = match &config {
+        Some(p) => SimConfig::load(p)?,
+        None => SimConfig::default(),
+    };
+    let (model, library) = load(ctx)?;
+    let body = model.shape(&ShapeParams::default())?;
+    let tube = sim::cloth::scene::torso_tube(&body, 128, 78, 0.015);
+    let cloth = ClothModel::new(&tube, &config, &[])?;
+    let prior = dataset::sampling::PosePrior::new(library);
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    println!(
+        "tube: {} particles, {} triangles, constraints stretch/shear/bend {}/{}/{}, {} colours; {} substeps at {} fps, morph {} frames",
+        cloth.len(),
+        tube.triangles.len(),
+        cloth.kind_counts[0],
+        cloth.kind_counts[1],
+        cloth.kind_counts[2],
+        cloth.distance_colours.len(),
+        config.substeps,
+        config.fps,
+        config.morph_frames
+    );
+    println!(
+        "pose                 family    frames  1 thread  {cores} threads  converged  strain p95  max    inside"
+    );
+    let mut reports: Vec<DrapeReport> = Vec::new();
+    for k in 0..poses {
+        let s = seed.wrapping_add(k);
+        let sampled = prior.sample_seeded(s);
+        let motion = BodyMorph::new(
+            &model,
+            ShapeParams::default(),
+            ShapeParams::default(),
+            sampled.pose.clone(),
+            config.morph_frames,
+        )?;
+        let mut time = [0.0f64; 2];
+        let mut last = None;
+        for (slot, threads) in [(0, 1usize), (1, cores)] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()?;
+            let d = pool.install(|| {
+                drape::drape(
+                    &cloth,
+                    &tube.vertices,
+                    &motion,
+                    &config,
+                    threads > 1,
+                    &mut |_| {},
+                )
+            });
+            time[slot] = d.report.wall_time;
+            last = Some(d.report);
+        }
+        let r = last.expect("ran");
+        println!(
+            "{:<20} {:<9} {:>3}+{:<3} {:>7.2} s {:>9.2} s  {:<9}  {:>9.2}%  {:>5.1}%  {}",
+            format!("random:{s}"),
+            sampled.family.name(),
+            r.morph_frames,
+            r.settle_frames,
+            time[0],
+            time[1],
+            if r.converged {
+                "yes".to_string()
+            } else {
+                format!(
+                    "NO ({})",
+                    r.failure.map(|f| f.to_string()).unwrap_or_default()
+                )
+            },
+            r.strain.p95 * 100.0,
+            r.strain.max * 100.0,
+            r.penetration.count
+        );
+        reports.push(r);
+    }
+    let n = reports.len().max(1) as f64;
+    let mean = |f: &dyn Fn(&DrapeReport) -> f64| reports.iter().map(f).sum::<f64>() / n;
+    println!(
+        "time per stage on {cores} threads (mean, s): body {:.3}, detect {:.3}, predict {:.3}, solve {:.3}, collide {:.3}, velocities {:.3}, verify {:.3}",
+        mean(&|r| r.stage_times.body),
+        mean(&|r| r.stage_times.detect),
+        mean(&|r| r.stage_times.predict),
+        mean(&|r| r.stage_times.solve),
+        mean(&|r| r.stage_times.collide),
+        mean(&|r| r.stage_times.velocities),
+        mean(&|r| r.verify_time),
+    );
+    if let Some(mb) = peak_memory_mb() {
+        println!("peak memory of this process: {mb:.0} MB");
+    }
+    Ok(())
+}
