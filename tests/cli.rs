@@ -257,3 +257,90 @@ fn malformed_bvh_and_unwritable_output_are_rejected() {
         "no-such-dir",
     );
 }
+
+/// A small tube garment around the canonical body, as OBJ text.
+fn small_tube_obj(offset: f32) -> String {
+    let model = sim::body::BodyModel::load_default().unwrap();
+    let body = model.shape(&sim::body::ShapeParams::default()).unwrap();
+    let mut tube = sim::cloth::scene::torso_tube(&body, 40, 20, 0.015);
+    for v in &mut tube.vertices {
+        v.x += offset;
+    }
+    tube.to_obj("test tube")
+}
+
+#[test]
+fn sim_drapes_a_garment_from_obj() {
+    let dir = tempfile::tempdir().unwrap();
+    let garment = dir.path().join("tube.obj");
+    std::fs::write(&garment, small_tube_obj(0.0)).unwrap();
+    let config = dir.path().join("fast.toml");
+    std::fs::write(&config, "morph_frames = 20\nmax_frames = 300\n").unwrap();
+    let out = dir.path().join("drape.obj");
+    let png = dir.path().join("drape.png");
+    let report = dir.path().join("report.json");
+    let o = drape(&[
+        "sim",
+        "--garment",
+        garment.to_str().unwrap(),
+        "--pose",
+        "t-pose",
+        "--config",
+        config.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(r["converged"], true, "{r}");
+    assert_eq!(r["morph_frames"], 20);
+    assert_eq!(r["penetration"]["count"], 0);
+    assert_eq!(r["particles"], 40 * 21);
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(
+        text.lines().filter(|l| l.starts_with("v ")).count(),
+        40 * 21
+    );
+    assert!(blue_share(&png) > 0.02);
+}
+
+#[test]
+fn sim_rejects_bad_garments_and_configs() {
+    let dir = tempfile::tempdir().unwrap();
+    let inputs = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.obj");
+    let out = out.to_str().unwrap();
+    let write = |name: &str, text: &str| {
+        let p = inputs.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        p.to_str().unwrap().to_string()
+    };
+    let sim = |garment: &str, extra: &[&str], expect: &str| {
+        let mut args = vec!["sim", "--garment", garment, "-o", out];
+        args.extend_from_slice(extra);
+        fails(dir.path(), &args, expect);
+    };
+    let fan = write(
+        "fan.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 2 5\n",
+    );
+    sim(&fan, &[], "non-manifold");
+    let nan = write("nan.obj", "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    sim(&nan, &[], "non-finite");
+    let flat = write(
+        "flat.obj",
+        "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n",
+    );
+    sim(&flat, &[], "zero area");
+    let far = write("far.obj", &small_tube_obj(5.0));
+    sim(&far, &[], "around the body");
+    let good = write("good.obj", &small_tube_obj(0.0));
+    let config = write("bad.toml", "substeps = 0\n");
+    sim(&good, &["--config", &config], "substeps");
+    sim("no-such-garment.obj", &[], "no such file");
+}
