@@ -19,3 +19,9 @@ $drape body --gender 1 --weight 0 --muscle 0 --height 0.8 -o "$tmp/b.obj" --png 
 $drape body --gender 0 --age 1 --height 0.2 --proportions 0 -o "$tmp/b.obj" --png "$out/shape-old-short-woman.png"
 # Eight poses of the prior (seeds 9 to 16 cover the three families) on the default body.
 $drape body gallery --samples 8 --seed 9 --columns 4 --cell-height 300 -o "$out/sampled-poses.png" | tee "$out/sampled-poses.txt"
+
+# The simulator: the garment-like tube on the default body, morphed to two poses of the prior.
+mkdir -p docs/sim
+for seed in 9 11; do
+  $drape sim --garment tube --pose "random:$seed" -o "$tmp/d.obj" --png "docs/sim/tube-random-$seed.png" --report "docs/sim/tube-random-$seed.json"
+done
