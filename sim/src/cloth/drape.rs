@@ -393,67 +393,62 @@ pub fn drape(
     solver.parallel = parallel;
     solver.times.body += t.elapsed().as_secs_f64();
 
+    // One frame: step, report progress, catch non-finite values and explosions.
     let explosion = 0.5 * config.max_velocity.max(1.0);
-    let mut failure = None;
     let mut frame = 0u32;
-    let mut last = (f32::MAX, 0.0f32);
-    let check = |stats: &super::solver::FrameStats, frame: u32| {
+    let mut step = |solver: &mut Solver<'_>, body: &BodyCollider, morphing: bool| {
+        let stats = solver.frame(body);
+        frame += 1;
+        progress(&Progress {
+            frame,
+            morphing,
+            max_displacement: stats.max_displacement,
+            kinetic_energy: stats.kinetic_energy,
+        });
         if !stats.finite {
-            Some(Failure::NonFinite { frame })
+            Err(Failure::NonFinite { frame })
         } else if stats.max_displacement > explosion {
-            Some(Failure::Explosion {
+            Err(Failure::Explosion {
                 frame,
                 displacement: stats.max_displacement,
             })
         } else {
-            None
+            Ok(stats)
         }
     };
+    let mut failure = None;
+    let mut last = (f32::MAX, 0.0f32);
     for k in 1..=motion.frames() {
         let t = Instant::now();
-        let next = motion.at(k);
-        body.advance(&next);
+        body.advance(&motion.at(k));
         solver.times.body += t.elapsed().as_secs_f64();
-        let stats = solver.frame(&body);
-        frame += 1;
-        last = (stats.max_displacement, stats.kinetic_energy);
-        progress(&Progress {
-            frame,
-            morphing: true,
-            max_displacement: last.0,
-            kinetic_energy: last.1,
-        });
-        if let Some(f) = check(&stats, frame) {
-            failure = Some(f);
-            break;
+        match step(&mut solver, &body, true) {
+            Ok(stats) => last = (stats.max_displacement, stats.kinetic_energy),
+            Err(f) => {
+                failure = Some(f);
+                break;
+            }
         }
     }
     let mut settle = 0u32;
     if failure.is_none() {
         body.hold();
         let mut calm = 0u32;
-        while settle < config.max_frames {
-            let stats = solver.frame(&body);
+        while settle < config.max_frames && calm < config.rest_frames {
             settle += 1;
-            frame += 1;
-            last = (stats.max_displacement, stats.kinetic_energy);
-            progress(&Progress {
-                frame,
-                morphing: false,
-                max_displacement: last.0,
-                kinetic_energy: last.1,
-            });
-            if let Some(f) = check(&stats, frame) {
-                failure = Some(f);
-                break;
-            }
-            calm = if stats.max_displacement < config.rest_displacement {
-                calm + 1
-            } else {
-                0
-            };
-            if calm >= config.rest_frames {
-                break;
+            match step(&mut solver, &body, false) {
+                Ok(stats) => {
+                    last = (stats.max_displacement, stats.kinetic_energy);
+                    calm = if stats.max_displacement < config.rest_displacement {
+                        calm + 1
+                    } else {
+                        0
+                    };
+                }
+                Err(f) => {
+                    failure = Some(f);
+                    break;
+                }
             }
         }
         if failure.is_none() && calm < config.rest_frames {

@@ -95,17 +95,8 @@ pub fn torso_tube(body: &ShapedBody<'_>, segments: u32, rings: u32, ease: f32) -
             ));
         }
     }
-    let id = |j: u32, i: u32| j * segments + (i % segments);
-    let mut triangles = Vec::with_capacity(2 * r * s);
-    for j in 0..rings {
-        for i in 0..segments {
-            let (a, b, c, d) = (id(j, i), id(j, i + 1), id(j + 1, i + 1), id(j + 1, i));
-            if (i + j) % 2 == 0 {
-                triangles.extend([[a, b, c], [a, c, d]]);
-            } else {
-                triangles.extend([[a, b, d], [b, c, d]]);
-            }
-        }
-    }
-    TriMesh::new(vertices, triangles)
+    TriMesh::new(
+        vertices,
+        crate::mesh::primitives::ring_triangles(segments, rings),
+    )
 }

@@ -112,8 +112,14 @@ pub fn tube(base: Vec3, radius: f32, height: f32, segments: u32, rings: u32) -> 
             vertices.push(base + Vec3::new(radius * phi.cos(), y, -radius * phi.sin()));
         }
     }
+    TriMesh::new(vertices, ring_triangles(segments, rings))
+}
+
+/// Triangles of `rings` bands of a closed ring of `segments` vertices per ring (vertex
+/// `j * segments + i` is vertex i of ring j), quads split along alternating diagonals.
+pub fn ring_triangles(segments: u32, rings: u32) -> Vec<[u32; 3]> {
     let id = |j: u32, i: u32| j * segments + (i % segments);
-    let mut triangles = Vec::new();
+    let mut triangles = Vec::with_capacity((2 * segments * rings) as usize);
     for j in 0..rings {
         for i in 0..segments {
             let (a, b, c, d) = (id(j, i), id(j, i + 1), id(j + 1, i + 1), id(j + 1, i));
@@ -124,7 +130,7 @@ pub fn tube(base: Vec3, radius: f32, height: f32, segments: u32, rings: u32) -> 
             }
         }
     }
-    TriMesh::new(vertices, triangles)
+    triangles
 }
 
 /// Appends `part` to `mesh`, merging vertices that coincide (within 1e-6).
