@@ -461,8 +461,13 @@ pub fn drape(
     // Push-out and verification.
     let t = Instant::now();
     let mut x = solver.x.clone();
-    let before = penetration(&body, &x);
-    if x.iter().all(|p| p.is_finite()) {
+    let finite = x.iter().all(|p| p.is_finite());
+    let before = if finite {
+        penetration(&body, &x)
+    } else {
+        PenetrationStats::default()
+    };
+    if finite {
         for p in x.iter_mut() {
             if let Some(hit) = body.closest(*p, VERIFY_RADIUS)
                 && hit.distance < 0.0
@@ -471,7 +476,11 @@ pub fn drape(
             }
         }
     }
-    let after = penetration(&body, &x);
+    let after = if finite {
+        penetration(&body, &x)
+    } else {
+        PenetrationStats::default()
+    };
     let verify_time = t.elapsed().as_secs_f64();
     if failure.is_none() && after.count > 0 && after.max_depth > config.max_penetration {
         failure = Some(Failure::PenetrationsLeft {
