@@ -307,6 +307,55 @@ fn sim_drapes_a_garment_from_obj() {
         40 * 21
     );
     assert!(blue_share(&png) > 0.02);
+
+    // Warm start from that drape: the body is already posed, the cloth already at rest.
+    let warm = dir.path().join("warm.obj");
+    let warm_report = dir.path().join("warm.json");
+    let (g, c, o, r) = (
+        garment.to_str().unwrap(),
+        config.to_str().unwrap(),
+        out.to_str().unwrap(),
+        warm_report.to_str().unwrap(),
+    );
+    let args = [
+        "sim",
+        "--garment",
+        g,
+        "--pose",
+        "t-pose",
+        "--config",
+        c,
+        "--warm-start",
+        o,
+        "-o",
+        warm.to_str().unwrap(),
+        "--report",
+        r,
+    ];
+    let w = drape(&args);
+    assert!(w.status.success(), "{}", stderr(&w));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&warm_report).unwrap()).unwrap();
+    assert_eq!(r["morph_frames"], 0);
+    assert!(r["settle_frames"].as_u64().unwrap() < 40, "{r}");
+    // A state of another mesh is refused.
+    let other = dir.path().join("other.obj");
+    std::fs::write(&other, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let bad = [
+        "sim",
+        "--garment",
+        g,
+        "--warm-start",
+        other.to_str().unwrap(),
+        "-o",
+        warm.to_str().unwrap(),
+    ];
+    let b = drape(&bad);
+    assert!(
+        !b.status.success() && stderr(&b).contains("faces differ"),
+        "{}",
+        stderr(&b)
+    );
 }
 
 #[test]

@@ -54,7 +54,7 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     };
     let (model, library) = load(ctx)?;
     let body = model.shape(&ShapeParams::default())?;
-    let tube = sim::cloth::scene::torso_tube(&body, 128, 78, 0.015);
+    let tube = super::simulate::garment("tube", &body)?;
     let cloth = ClothModel::new(&tube, &config, &[])?;
     let prior = dataset::sampling::PosePrior::new(library);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());

@@ -37,6 +37,11 @@ pub struct SimArgs {
     /// Also write the drape report (quality, timings) as JSON.
     #[arg(long, value_name = "FILE.json")]
     report: Option<PathBuf>,
+    /// Warm start (the paper's PBS-dagger protocol): start the cloth from this state (an
+    /// OBJ with the template's faces, e.g. a DQS warp or an earlier drape) with the body
+    /// already in its target shape and pose, instead of morphing from the canonical body.
+    #[arg(long, value_name = "FILE.obj")]
+    warm_start: Option<PathBuf>,
     /// Threads for contact detection and collision (default: all cores).
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
@@ -45,7 +50,8 @@ pub struct SimArgs {
 /// The garment template: an OBJ file or the built-in tube.
 pub fn garment(spec: &str, canonical: &sim::body::ShapedBody<'_>) -> anyhow::Result<TriMesh> {
     if spec == "tube" {
-        return Ok(sim::cloth::scene::torso_tube(canonical, 128, 78, 0.015));
+        // Numbered as an OBJ of it reads back, so that its drapes can warm-start it.
+        return Ok(sim::cloth::scene::torso_tube(canonical, 128, 78, 0.015).in_first_use_order());
     }
     let path = Path::new(spec);
     if !path.exists() {
@@ -67,15 +73,42 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
     let mesh = garment(&args.garment, &canonical)?;
     let cloth = ClothModel::new(&mesh, &config, &[])?;
-    let start_body = BodyCollider::new(&canonical.vertices, &model.triangles, config.margin);
-    drape::check_placement(&start_body, &mesh.vertices)?;
-    let motion = BodyMorph::new(
-        &model,
-        ShapeParams::default(),
-        params,
-        resolved.pose.clone(),
-        config.morph_frames,
-    )?;
+    let morph;
+    let still;
+    let (start, motion): (Vec<_>, &(dyn drape::BodyMotion + Sync)) = match &args.warm_start {
+        None => {
+            let start_body =
+                BodyCollider::new(&canonical.vertices, &model.triangles, config.margin);
+            drape::check_placement(&start_body, &mesh.vertices)?;
+            morph = BodyMorph::new(
+                &model,
+                ShapeParams::default(),
+                params,
+                resolved.pose.clone(),
+                config.morph_frames,
+            )?;
+            (mesh.vertices.clone(), &morph)
+        }
+        Some(path) => {
+            let state = TriMesh::read_obj(path)?;
+            if state.triangles != mesh.triangles {
+                bail!(
+                    "warm start {}: its faces differ from the garment template's ({} and {} triangles); it must be a state of the same mesh",
+                    path.display(),
+                    state.triangles.len(),
+                    mesh.triangles.len()
+                );
+            }
+            let posed = target.pose(&resolved.pose).vertices;
+            let body = BodyCollider::new(&posed, &model.triangles, config.margin);
+            drape::check_placement(&body, &state.vertices)?;
+            still = drape::StaticBody {
+                vertices: posed,
+                triangles: model.triangles.clone(),
+            };
+            (state.vertices, &still)
+        }
+    };
 
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.unwrap_or(0))
@@ -89,7 +122,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
         );
     bar.set_prefix("drape");
     let result = pool.install(|| {
-        drape::drape(&cloth, &mesh.vertices, &motion, &config, true, &mut |p| {
+        drape::drape(&cloth, &start, motion, &config, true, &mut |p| {
             bar.set_position(p.frame as u64);
             bar.set_message(format!(
                 "{}, kinetic energy {:.2e} J, largest move {:.2} mm",

@@ -67,3 +67,40 @@ impl SelfCollision {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cloth::SimConfig;
+    use crate::mesh::primitives;
+
+    #[test]
+    fn close_particles_are_pushed_apart_and_rest_neighbours_are_not() {
+        let config = SimConfig::default();
+        // 1 cm spacing: particles far apart on the cloth, folded onto each other.
+        let grid = primitives::grid(Vec3::ZERO, Vec3::X * 0.1, Vec3::Z * 0.1, 10, 10);
+        let model = ClothModel::new(&grid, &config, &[]).unwrap();
+        let mut sc = SelfCollision::new(&model, 0.004);
+        let mut x = grid.vertices.clone();
+        let (a, b) = (0usize, 120usize);
+        x[b] = x[a] + Vec3::new(0.0, 0.001, 0.0);
+        sc.solve(&mut x, &model.inv_mass);
+        assert!(
+            x[a].distance(x[b]) >= 0.004 - 1e-6,
+            "{}",
+            x[a].distance(x[b])
+        );
+        // Momentum: equal masses moved equally and oppositely.
+        assert!(
+            ((x[a] - grid.vertices[a]) + (x[b] - (grid.vertices[a] + Vec3::Y * 0.001))).length()
+                < 1e-6
+        );
+        // 3 mm spacing: neighbours are closer than 4 mm at rest and must stay as they are.
+        let fine = primitives::grid(Vec3::ZERO, Vec3::X * 0.03, Vec3::Z * 0.03, 10, 10);
+        let model = ClothModel::new(&fine, &config, &[]).unwrap();
+        let mut sc = SelfCollision::new(&model, 0.004);
+        let mut x = fine.vertices.clone();
+        sc.solve(&mut x, &model.inv_mass);
+        assert_eq!(x, fine.vertices);
+    }
+}

@@ -84,6 +84,31 @@ impl TriMesh {
         Ok(mesh)
     }
 
+    /// The same mesh with vertices numbered in order of first use by the faces, as
+    /// [`TriMesh::read_obj`] numbers them; unused vertices are dropped. A mesh already in
+    /// that order comes back unchanged.
+    pub fn in_first_use_order(&self) -> TriMesh {
+        let mut map = vec![u32::MAX; self.vertices.len()];
+        let mut vertices = Vec::with_capacity(self.vertices.len());
+        let triangles = self
+            .triangles
+            .iter()
+            .map(|t| {
+                t.map(|i| {
+                    if map[i as usize] == u32::MAX {
+                        map[i as usize] = vertices.len() as u32;
+                        vertices.push(self.vertices[i as usize]);
+                    }
+                    map[i as usize]
+                })
+            })
+            .collect();
+        TriMesh {
+            vertices,
+            triangles,
+        }
+    }
+
     /// The mesh as Wavefront OBJ text (`v` and `f` records, 1-based indices).
     pub fn to_obj(&self, header: &str) -> String {
         let mut s = String::with_capacity(self.vertices.len() * 40 + self.triangles.len() * 24);
@@ -149,6 +174,12 @@ mod tests {
                 assert!(d < 1e-6);
             }
         }
+        // A mesh in first-use order survives the round trip index for index.
+        let ordered = m.in_first_use_order();
+        std::fs::write(&p, ordered.to_obj("ordered")).unwrap();
+        let back = TriMesh::read_obj(&p).unwrap();
+        assert_eq!(back.triangles, ordered.triangles);
+        assert_eq!(ordered.in_first_use_order(), ordered);
         std::fs::write(&p, "v 0 0 0\nv 1 0 0\n").unwrap();
         assert!(
             TriMesh::read_obj(&p)
