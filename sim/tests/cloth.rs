@@ -140,10 +140,16 @@ fn cloth_dropped_on_a_box_rests_outside_it() {
         r.penetration_before_pushout
     );
     // The middle lies flat on the top face.
-    let centre = d
+    let centre: Vec<&Vec3> = d
         .positions
         .iter()
-        .filter(|p| p.x.abs() < 0.1 && p.z.abs() < 0.1);
+        .filter(|p| p.x.abs() < 0.1 && p.z.abs() < 0.1)
+        .collect();
+    assert!(
+        centre.len() > 20,
+        "only {} particles over the middle of the box",
+        centre.len()
+    );
     for p in centre {
         assert!((p.y - 0.25 - config.thickness).abs() < 0.002, "{p}");
     }
@@ -174,21 +180,23 @@ fn tube_around_a_fast_cylinder_never_tunnels() {
     let mut body = BodyCollider::new(&cyl.vertices, &cyl.triangles, config.margin);
     let mut solver = Solver::new(&model, &config, tube.vertices.clone());
     use sim::cloth::drape::BodyMotion;
+    // Depth below the cylinder's surface from its axis: counts a particle however deep, and
+    // a wall that passed through the cylinder as well.
     let mut deepest = 0.0f32;
     for k in 1..=frames {
         body.advance(&motion.at(k));
         solver.frame(&body);
+        let axis_x = speed * k.min(30) as f32;
         for p in &solver.x {
-            if let Some(d) = body.signed_distance(*p, 0.05) {
-                deepest = deepest.max(-d);
-            }
+            let r = ((p.x - axis_x).powi(2) + p.z.powi(2)).sqrt();
+            deepest = deepest.max(0.1 - r);
         }
     }
     assert!(
-        deepest <= config.thickness,
+        deepest <= 0.001,
         "a particle got {deepest} m inside the cylinder"
     );
-    // The tube went along with the cylinder (0.9 m to the right).
+    // The tube went along with the cylinder (1.5 m to the right).
     let mean_x = solver.x.iter().map(|p| p.x).sum::<f32>() / solver.x.len() as f32;
     assert!((mean_x - 1.5).abs() < 0.1, "tube centre at x = {mean_x}");
 }
@@ -202,7 +210,7 @@ fn slide(degrees: f32, mu: f32) -> f32 {
         ..Default::default()
     };
     let rot = Quat::from_rotation_z(degrees.to_radians());
-    let slab = primitives::cuboid(Vec3::new(0.0, -0.05, 0.0), Vec3::new(2.0, 0.05, 1.0), 16);
+    let slab = primitives::cuboid(Vec3::new(-3.0, -0.05, 0.0), Vec3::new(4.0, 0.05, 1.0), 32);
     let slab_v: Vec<Vec3> = slab.vertices.iter().map(|v| rot * *v).collect();
     let patch = primitives::grid(
         Vec3::new(-0.1, 0.0032, -0.1),
@@ -232,8 +240,12 @@ fn friction_decides_between_sliding_and_sticking() {
     let stuck = slide(20.0, 0.6);
     let slid = slide(20.0, 0.1);
     assert!(stuck < 0.005, "with mu = 0.6 the patch moved {stuck} m");
-    // Sliding with friction: a = g (sin - mu cos) = 2.43 m/s^2, 2.7 m in 1.5 s.
-    assert!(slid > 1.0, "with mu = 0.1 the patch moved only {slid} m");
+    // Sliding with friction: a = g (sin - mu cos) = 2.43 m/s^2, 2.74 m in 1.5 s (without
+    // friction it would be 3.77 m).
+    assert!(
+        (slid - 2.74).abs() < 0.15 * 2.74,
+        "with mu = 0.1 the patch slid {slid} m"
+    );
 }
 
 #[test]
@@ -287,4 +299,100 @@ fn same_bits_on_one_thread_and_on_two() {
             .all(|(a, b)| a.to_array() == b.to_array()),
         "results differ between thread counts"
     );
+}
+
+#[test]
+fn failed_drapes_say_why() {
+    // Too few frames to come to rest.
+    let config = SimConfig {
+        max_frames: 3,
+        ..Default::default()
+    };
+    let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 32, 16);
+    let (_, d) = drop_on(&sphere, &config, 0.3);
+    assert!(!d.report.converged);
+    assert!(
+        matches!(d.report.failure, Some(drape::Failure::NoConvergence { .. })),
+        "{:?}",
+        d.report.failure
+    );
+    // A cloth that starts cut through a sphere: most of it is inside and stays there, which
+    // the final push-out must not hide.
+    let config = SimConfig {
+        gravity: [0.0; 3],
+        ..Default::default()
+    };
+    let cloth = primitives::grid(
+        Vec3::new(-0.2, 0.0, -0.2),
+        Vec3::X * 0.4,
+        Vec3::Z * 0.4,
+        20,
+        20,
+    );
+    let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+    let body = StaticBody {
+        vertices: sphere.vertices.clone(),
+        triangles: sphere.triangles.clone(),
+    };
+    let d = drape::drape(&model, &cloth.vertices, &body, &config, false, &mut |_| {});
+    assert!(!d.report.converged);
+    assert!(
+        d.report.penetration_before_pushout.count > 100,
+        "{:?}",
+        d.report.penetration_before_pushout
+    );
+    assert!(
+        matches!(
+            d.report.failure,
+            Some(drape::Failure::PushedOut { .. } | drape::Failure::PenetrationsLeft { .. })
+        ),
+        "{:?}",
+        d.report.failure
+    );
+}
+
+#[test]
+fn same_bits_on_any_thread_count_with_a_moving_body() {
+    let config = SimConfig {
+        gravity: [0.0, -9.81, 0.0],
+        ..Default::default()
+    };
+    let cyl = primitives::cylinder(Vec3::new(0.0, -0.5, 0.0), 0.1, 1.0, 48, 8);
+    let tube = primitives::tube(Vec3::new(0.0, -0.3, 0.0), 0.12, 0.6, 48, 24);
+    let model = ClothModel::new(&tube, &config, &[]).unwrap();
+    let v0 = cyl.vertices.clone();
+    let motion = FnMotion {
+        frames: 20,
+        at: move |k| {
+            v0.iter()
+                .map(|v| *v + Vec3::new(0.02 * k as f32, 0.0, 0.01 * k as f32))
+                .collect()
+        },
+        triangles: cyl.triangles.clone(),
+    };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            drape::drape(
+                &model,
+                &tube.vertices,
+                &motion,
+                &config,
+                threads > 1,
+                &mut |_| {},
+            )
+        })
+    };
+    let (a, b) = (run(1), run(2));
+    assert!(
+        a.positions
+            .iter()
+            .zip(&b.positions)
+            .all(|(p, q)| p.to_array() == q.to_array())
+    );
+    assert_eq!(a.report.settle_frames, b.report.settle_frames);
+    assert_eq!(a.report.strain, b.report.strain);
 }

@@ -71,7 +71,7 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
         config.morph_frames
     );
     println!(
-        "pose                 family    frames  1 thread  {cores} threads  converged  strain p95  max    inside"
+        "pose                 family    frames  1 thread  {cores} threads  converged  strain p95  max    inside before/after push-out"
     );
     let mut reports: Vec<DrapeReport> = Vec::new();
     for k in 0..poses {
@@ -122,7 +122,10 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             },
             r.strain.p95 * 100.0,
             r.strain.max * 100.0,
-            r.penetration.count
+            format!(
+                "{}/{}",
+                r.penetration_before_pushout.count, r.penetration.count
+            )
         );
         reports.push(r);
     }

@@ -113,7 +113,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.unwrap_or(0))
         .build()?;
-    let bar = indicatif::ProgressBar::new((config.morph_frames + config.max_frames) as u64)
+    let bar = indicatif::ProgressBar::new(config.morph_frames as u64 + config.max_frames as u64)
         .with_style(
             indicatif::ProgressStyle::with_template(
                 "{prefix} [{bar:30}] frame {pos} {msg} ({elapsed})",
@@ -178,7 +178,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     }
     sim::io::write_all_or_nothing(&files)?;
     println!(
-        "{} particles, {} + {} frames ({} substeps) in {:.2} s; strain p95 {:.2}% max {:.2}%; {} particles inside the body (deepest {:.2} mm)",
+        "{} particles, {} + {} frames ({} substeps) in {:.2} s; strain p95 {:.2}% max {:.2}%; inside the body: {} particles before the final push-out, {} after (deepest {:.2} mm)",
         r.particles,
         r.morph_frames,
         r.settle_frames,
@@ -186,6 +186,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
         r.wall_time,
         r.strain.p95 * 100.0,
         r.strain.max * 100.0,
+        r.penetration_before_pushout.count,
         r.penetration.count,
         r.penetration.max_depth * 1e3,
     );

@@ -45,7 +45,8 @@ pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> ([f32; 3], Fea
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
+        // d1 - d3 = |ab|^2 > 0 here unless a and b coincide.
+        let v = if d1 - d3 > 0.0 { d1 / (d1 - d3) } else { 0.0 };
         return ([1.0 - v, v, 0.0], Feature::Edge(0));
     }
     let cp = p - c;
@@ -56,17 +57,22 @@ pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> ([f32; 3], Fea
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
+        let w = if d2 - d6 > 0.0 { d2 / (d2 - d6) } else { 0.0 };
         return ([1.0 - w, 0.0, w], Feature::Edge(2));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        let s = (d4 - d3) + (d5 - d6);
+        let w = if s > 0.0 { (d4 - d3) / s } else { 0.0 };
         return ([0.0, 1.0 - w, w], Feature::Edge(1));
     }
-    let denom = 1.0 / (va + vb + vc);
-    let v = vb * denom;
-    let w = vc * denom;
+    let sum = va + vb + vc;
+    if sum <= 0.0 {
+        // A degenerate triangle: its first corner stands in for it.
+        return ([1.0, 0.0, 0.0], Feature::Vertex(0));
+    }
+    let v = vb / sum;
+    let w = vc / sum;
     ([1.0 - v - w, v, w], Feature::Face)
 }
 
@@ -114,6 +120,8 @@ pub struct BodyCollider {
     normals_start: PseudoNormals,
     normals_end: PseudoNormals,
     bvh: Bvh2,
+    /// Each triangle's swept box, inflated by the margin.
+    boxes: Vec<Aabb>,
     margin: f32,
     travel: f32,
 }
@@ -175,6 +183,7 @@ impl BodyCollider {
             normals_start: PseudoNormals::default(),
             normals_end: PseudoNormals::default(),
             bvh,
+            boxes: vec![Aabb::INVALID; triangles.len()],
             margin,
             travel: 0.0,
         };
@@ -229,17 +238,21 @@ impl BodyCollider {
 
     fn refit(&mut self) {
         let m = Vec3A::splat(self.margin);
+        for (t, b) in self.triangles.iter().zip(self.boxes.iter_mut()) {
+            let mut bb = Aabb::INVALID;
+            for &i in t {
+                bb.extend(to_a(self.start[i as usize]));
+                bb.extend(to_a(self.end[i as usize]));
+            }
+            *b = Aabb::new(bb.min - m, bb.max + m);
+        }
         for node in self.bvh.nodes.iter_mut() {
             if node.is_leaf() {
                 let mut bb = Aabb::INVALID;
                 for k in node.first_index..node.first_index + node.prim_count {
-                    let t = self.triangles[self.bvh.primitive_indices[k as usize] as usize];
-                    for &i in &t {
-                        bb.extend(to_a(self.start[i as usize]));
-                        bb.extend(to_a(self.end[i as usize]));
-                    }
+                    bb = bb.union(&self.boxes[self.bvh.primitive_indices[k as usize] as usize]);
                 }
-                node.set_aabb(Aabb::new(bb.min - m, bb.max + m));
+                node.set_aabb(bb);
             }
         }
         self.bvh.refit_all();
@@ -315,10 +328,18 @@ impl BodyCollider {
             let node = &bvh.nodes[node_index as usize];
             for k in node.first_index..node.first_index + node.prim_count {
                 let f = bvh.primitive_indices[k as usize];
+                // Each triangle's own swept box: the candidates do not depend on how the
+                // tree grouped triangles into leaves.
+                if !self.boxes[f as usize].intersect_aabb(&query) {
+                    continue;
+                }
                 let [a, b, c] = self.triangles[f as usize].map(|i| self.end[i as usize]);
                 let (bary, feature) = closest_on_triangle(p, a, b, c);
                 let q = a * bary[0] + b * bary[1] + c * bary[2];
                 let d2 = p.distance_squared(q);
+                if !d2.is_finite() {
+                    continue;
+                }
                 // Ties (a shared edge or vertex) go to the lower triangle index.
                 if best.is_none_or(|(bd, bf, _, _)| d2 < bd || (d2 == bd && f < bf)) {
                     best = Some((d2, f, bary, feature));
@@ -367,11 +388,63 @@ impl BodyCollider {
         })
     }
 
+    /// True if `p` is inside the (closed) body at the end of the frame: a ray from `p`
+    /// crosses the body an odd number of times. Works at any depth, unlike distances. A ray
+    /// through a shared edge or vertex can be miscounted, so three rays in unrelated
+    /// directions vote.
+    pub fn inside(&self, p: Vec3) -> bool {
+        const DIRS: [[f32; 3]; 3] = [
+            [0.5773, 0.5774, 0.5773],
+            [-0.6712, 0.2331, 0.7036],
+            [0.1289, -0.8911, -0.4352],
+        ];
+        let votes = DIRS
+            .iter()
+            .filter(|d| {
+                let dir = Vec3::from_array(**d).normalize();
+                let ray = obvhs::ray::Ray::new_inf(to_a(p), to_a(dir));
+                let mut crossings = 0u32;
+                self.bvh.ray_traverse_anyhit(ray, |_, k| {
+                    let f = self.bvh.primitive_indices[k];
+                    let [a, b, c] = self.triangles[f as usize].map(|i| self.end[i as usize]);
+                    if ray_hits_triangle(p, dir, a, b, c) {
+                        crossings += 1;
+                    }
+                });
+                crossings % 2 == 1
+            })
+            .count();
+        votes >= 2
+    }
+
     /// Signed distance of `p` to the body within `radius` (positive outside), if any part of
     /// the body is that close.
     pub fn signed_distance(&self, p: Vec3, radius: f32) -> Option<f32> {
         self.closest(p, radius).map(|h| h.distance)
     }
+}
+
+/// Moeller-Trumbore: does the ray `origin + t dir`, t > 0, cross the triangle?
+fn ray_hits_triangle(origin: Vec3, dir: Vec3, a: Vec3, b: Vec3, c: Vec3) -> bool {
+    let e1 = b - a;
+    let e2 = c - a;
+    let p = dir.cross(e2);
+    let det = e1.dot(p);
+    if det.abs() < 1e-12 {
+        return false;
+    }
+    let inv = 1.0 / det;
+    let s = origin - a;
+    let u = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return false;
+    }
+    let q = s.cross(e1);
+    let v = dir.dot(q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return false;
+    }
+    e2.dot(q) * inv > 0.0
 }
 
 #[cfg(test)]
@@ -420,6 +493,29 @@ mod tests {
             body.signed_distance(Vec3::new(0.0, 2.0, 0.0), 0.1)
                 .is_none()
         );
+        // Inside at any depth; outside far away.
+        assert!(body.inside(Vec3::ZERO));
+        assert!(body.inside(Vec3::new(0.1, -0.2, 0.05)));
+        assert!(!body.inside(Vec3::new(0.0, 0.0, 0.7)));
+        assert!(!body.inside(Vec3::new(3.0, 1.0, -2.0)));
+    }
+
+    #[test]
+    fn degenerate_triangles_give_finite_answers() {
+        let (a, b) = (Vec3::ZERO, Vec3::X);
+        for p in [
+            Vec3::new(0.5, 1.0, 0.0),
+            Vec3::new(-1.0, 0.0, 0.0),
+            Vec3::new(0.0, 0.0, 2.0),
+        ] {
+            for (x, y, z) in [(a, a, b), (a, b, b), (a, b, a), (a, a, a)] {
+                let (bary, _) = closest_on_triangle(p, x, y, z);
+                assert!(
+                    bary.iter().all(|w| w.is_finite()),
+                    "{p} {x} {y} {z}: {bary:?}"
+                );
+            }
+        }
     }
 
     #[test]

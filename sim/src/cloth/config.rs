@@ -64,6 +64,9 @@ pub struct SimConfig {
     /// Vertices deeper than this inside the body after the final push-out fail the drape
     /// (m, default 0.001).
     pub max_penetration: f32,
+    /// Largest share of particles the final push-out may move out of the body (deeper than
+    /// `max_penetration`) before the drape counts as failed (default 0.01).
+    pub max_pushout_share: f32,
 }
 
 impl Default for SimConfig {
@@ -92,6 +95,7 @@ impl Default for SimConfig {
             rest_frames: 10,
             max_frames: 600,
             max_penetration: 0.001,
+            max_pushout_share: 0.01,
         }
     }
 }
@@ -158,6 +162,7 @@ impl SimConfig {
             ("dihedral_compliance", self.dihedral_compliance),
             ("margin", self.margin),
             ("friction", self.friction),
+            ("max_pushout_share", self.max_pushout_share),
             ("stretch_limit", self.stretch_limit),
         ];
         for (name, v) in non_negative {

@@ -46,6 +46,17 @@ pub fn validate_mesh(mesh: &TriMesh) -> Result<(), String> {
     if let Some(i) = mesh.vertices.iter().position(|v| !v.is_finite()) {
         return Err(format!("vertex {i} has a non-finite coordinate"));
     }
+    let mut used = vec![false; n];
+    for t in &mesh.triangles {
+        for &i in t {
+            if let Some(u) = used.get_mut(i as usize) {
+                *u = true;
+            }
+        }
+    }
+    if let Some(i) = used.iter().position(|u| !u) {
+        return Err(format!("vertex {i} belongs to no face"));
+    }
     let mut edge_faces: HashMap<(u32, u32), u32> = HashMap::new();
     let mut seen = std::collections::HashSet::new();
     for (f, t) in mesh.triangles.iter().enumerate() {
@@ -86,7 +97,16 @@ pub fn validate_mesh(mesh: &TriMesh) -> Result<(), String> {
 impl ClothModel {
     /// Cooks a cloth from its rest mesh. `pinned` particles get infinite mass.
     pub fn new(mesh: &TriMesh, config: &SimConfig, pinned: &[u32]) -> Result<Self, SimError> {
+        config.validate().map_err(|reason| SimError::Config {
+            path: "(in memory)".into(),
+            reason,
+        })?;
         validate_mesh(mesh).map_err(SimError::BadMesh)?;
+        if let Some(&p) = pinned.iter().find(|&&p| p as usize >= mesh.vertices.len()) {
+            return Err(SimError::BadMesh(format!(
+                "pinned particle {p} does not exist"
+            )));
+        }
         let x = &mesh.vertices;
         let n = x.len();
         // Masses from areas; vertex areas for compliance scaling.

@@ -31,9 +31,7 @@ impl SelfCollision {
     pub fn solve(&mut self, x: &mut [Vec3], inv_mass: &[f32]) {
         let d = self.distance;
         let cell = |p: Vec3| (p / d).floor().as_ivec3();
-        for list in self.grid.values_mut() {
-            list.clear();
-        }
+        self.grid.clear();
         for (i, p) in x.iter().enumerate() {
             self.grid.entry(cell(*p)).or_default().push(i as u32);
         }

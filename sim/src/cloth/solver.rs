@@ -24,18 +24,38 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::SimConfig;
-use super::collision::{BodyCollider, Contact};
+use super::collision::BodyCollider;
 use super::constraints::dihedral;
 use super::constraints::distance::Prepared;
 use super::model::ClothModel;
 
-/// A contact's point and pseudo-normal at the start and end of a frame.
+/// A contact's point and pseudo-normal at the start and end of a frame (the point moves
+/// linearly in between: its barycentrics are fixed for the frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Plane {
     q0: Vec3,
     q1: Vec3,
     n0: Vec3,
     n1: Vec3,
+}
+
+/// A particle's contact state.
+#[derive(Debug, Clone, Copy)]
+struct ContactState {
+    /// Its contact this frame, if any.
+    plane: Option<Plane>,
+    /// Where and with which radius it last searched (NaN before the first search, so the
+    /// first frame always searches).
+    searched: (Vec3, f32),
+}
+
+impl Default for ContactState {
+    fn default() -> Self {
+        Self {
+            plane: None,
+            searched: (Vec3::ZERO, f32::NAN),
+        }
+    }
 }
 
 /// Wall time spent in each stage (s).
@@ -88,8 +108,8 @@ pub struct FrameStats {
 pub struct Solver<'m> {
     /// The cloth.
     pub model: &'m ClothModel,
-    /// Parameters.
-    pub config: SimConfig,
+    /// Parameters (fixed: the constraints are prepared for their substep length).
+    config: SimConfig,
     /// Positions (m).
     pub x: Vec<Vec3>,
     /// Velocities (m/s).
@@ -102,18 +122,19 @@ pub struct Solver<'m> {
     pub substeps_run: u64,
     x_before: Vec<Vec3>,
     x_frame: Vec<Vec3>,
-    contacts: Vec<Option<Contact>>,
-    /// Each contact's point and normal at the frame's start and end (the point moves
-    /// linearly in between: its barycentrics are fixed for the frame).
-    planes: Vec<Option<Plane>>,
-    /// Where and with which radius each particle last searched for contacts.
-    searched: Vec<(Vec3, f32)>,
+    /// Per particle: its contact this frame and its last search.
+    contacts: Vec<ContactState>,
     /// Distance constraints prepared for this substep length, in colour order.
     prepared: Vec<Prepared>,
     self_grid: super::self_collision::SelfCollision,
 }
 
 impl<'m> Solver<'m> {
+    /// The parameters.
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
     /// A solver with the cloth at `x` and at rest.
     pub fn new(model: &'m ClothModel, config: &SimConfig, x: Vec<Vec3>) -> Self {
         assert_eq!(x.len(), model.len());
@@ -128,9 +149,7 @@ impl<'m> Solver<'m> {
             parallel: true,
             times: StageTimes::default(),
             substeps_run: 0,
-            contacts: vec![None; n],
-            planes: vec![None; n],
-            searched: vec![(Vec3::ZERO, 0.0); n],
+            contacts: vec![ContactState::default(); n],
             prepared: {
                 let h = config.substep_dt();
                 let w = &model.inv_mass;
@@ -154,54 +173,38 @@ impl<'m> Solver<'m> {
 
         // 1. detect
         let t0 = Instant::now();
-        // A particle's last search still holds while the body stands still and the
-        // particle stays within the slack of that search: everything within its reach now
-        // was within the radius searched then.
+        // While the body stands still, a particle's last search can be reused: a search
+        // that found nothing while the particle stays within that search's slack (all that
+        // is within its reach now was within the radius searched then), a contact while the
+        // particle has moved less than half the margin.
         let still = body.travel() == 0.0;
         let (x, v, thickness, margin) = (&self.x, &self.v, c.thickness, body.margin());
-        let detect = |(i, (slot, searched)): (usize, (&mut Option<Contact>, &mut (Vec3, f32)))| {
+        let detect = |(i, state): (usize, &mut ContactState)| {
             let travel = v[i].length() * frame_dt;
-            if still && x[i].distance(searched.0) + travel + thickness <= searched.1 + margin {
+            let moved = x[i].distance(state.searched.0) + travel;
+            let keep = match state.plane {
+                None => moved + thickness <= state.searched.1 + margin,
+                Some(_) => moved <= 0.5 * margin,
+            };
+            if still && keep {
                 return;
             }
             let radius = thickness + travel;
-            *slot = body.contact(x[i], radius);
-            *searched = (x[i], radius);
-        };
-        if self.parallel {
-            self.contacts
-                .par_iter_mut()
-                .zip(self.searched.par_iter_mut())
-                .enumerate()
-                .for_each(detect);
-        } else {
-            self.contacts
-                .iter_mut()
-                .zip(self.searched.iter_mut())
-                .enumerate()
-                .for_each(detect);
-        }
-        let planes = |(slot, c): (&mut Option<Plane>, &Option<Contact>)| {
-            *slot = c.map(|c| Plane {
+            state.plane = body.contact(x[i], radius).map(|c| Plane {
                 q0: body.point_at(&c, 0.0),
                 q1: body.point_at(&c, 1.0),
                 n0: body.normal_at(&c, 0.0),
                 n1: body.normal_at(&c, 1.0),
             });
+            state.searched = (x[i], radius);
         };
         if self.parallel {
-            self.planes
-                .par_iter_mut()
-                .zip(self.contacts.par_iter())
-                .for_each(planes);
+            self.contacts.par_iter_mut().enumerate().for_each(detect);
         } else {
-            self.planes
-                .iter_mut()
-                .zip(self.contacts.iter())
-                .for_each(planes);
+            self.contacts.iter_mut().enumerate().for_each(detect);
         }
         self.times.detect += t0.elapsed().as_secs_f64();
-        let n_contacts = self.contacts.iter().filter(|c| c.is_some()).count();
+        let n_contacts = self.contacts.iter().filter(|c| c.plane.is_some()).count();
 
         let g = c.gravity();
         let vmax = c.max_velocity;
@@ -314,8 +317,8 @@ impl<'m> Solver<'m> {
         let thickness = self.config.thickness;
         let mu = self.config.friction;
         let w = &self.model.inv_mass;
-        let one = |(i, (x, (xb, plane))): (usize, (&mut Vec3, (&Vec3, &Option<Plane>)))| {
-            let Some(p) = plane else { return };
+        let one = |(i, (x, (xb, state))): (usize, (&mut Vec3, (&Vec3, &ContactState)))| {
+            let Some(p) = &state.plane else { return };
             if w[i] == 0.0 {
                 return;
             }
@@ -343,13 +346,13 @@ impl<'m> Solver<'m> {
         if self.parallel {
             self.x
                 .par_iter_mut()
-                .zip(self.x_before.par_iter().zip(self.planes.par_iter()))
+                .zip(self.x_before.par_iter().zip(self.contacts.par_iter()))
                 .enumerate()
                 .for_each(one);
         } else {
             self.x
                 .iter_mut()
-                .zip(self.x_before.iter().zip(self.planes.iter()))
+                .zip(self.x_before.iter().zip(self.contacts.iter()))
                 .enumerate()
                 .for_each(one);
         }

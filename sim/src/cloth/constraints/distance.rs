@@ -117,7 +117,9 @@ pub fn solve(c: &Distance, xi: Vec3, xj: Vec3, wi: f32, wj: f32, inv_h2: f32) ->
 
 /// Classifies the pair `(a, c)` reached from `a` through `b`: the NvCloth cooker's ratio
 /// `|(a - b) x (c - b)| / |c - a|^2` is 0 on a straight path and 0.5 at a right angle.
-/// Bend below 0.1, shear from 0.35 (quad corners); in between, neither.
+/// Bend below 0.1; shear from 0.35 to 0.6 (around a quad's right-angled corner, where
+/// NvCloth's shear score peaks at 0.45); otherwise neither (NvCloth also sums its scores over
+/// all paths between a pair; here the first path that classifies decides).
 pub fn classify(a: Vec3, b: Vec3, c: Vec3) -> Option<Kind> {
     let ac = (c - a).length_squared();
     if ac < 1e-20 {
@@ -126,7 +128,7 @@ pub fn classify(a: Vec3, b: Vec3, c: Vec3) -> Option<Kind> {
     let ratio = (a - b).cross(c - b).length() / ac;
     if ratio < 0.1 {
         Some(Kind::Bend)
-    } else if ratio >= 0.35 {
+    } else if (0.35..=0.6).contains(&ratio) {
         Some(Kind::Shear)
     } else {
         None
@@ -208,5 +210,8 @@ mod tests {
         // Equilateral corner (120 degrees): neither.
         let c = Vec3::new(0.5, 3f32.sqrt() / 2.0, 0.0);
         assert_eq!(classify(-Vec3::X, b, c), None);
+        // A sharp corner (60 degrees, ratio 0.87): neither.
+        let sharp = Vec3::new(-0.5, 3f32.sqrt() / 2.0, 0.0);
+        assert_eq!(classify(-Vec3::X, b, sharp), None);
     }
 }
