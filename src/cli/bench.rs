@@ -104,28 +104,24 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             last = Some(d.report);
         }
         let r = last.expect("ran");
+        let label = format!("random:{s}");
+        let converged = match &r.failure {
+            None => "yes".to_string(),
+            Some(f) => format!("NO ({f})"),
+        };
+        let inside = format!(
+            "{}/{}",
+            r.penetration_before_pushout.count, r.penetration.count
+        );
         println!(
-            "{:<20} {:<9} {:>3}+{:<3} {:>7.2} s {:>9.2} s  {:<9}  {:>9.2}%  {:>5.1}%  {}",
-            format!("random:{s}"),
+            "{label:<20} {:<9} {:>3}+{:<3} {:>7.2} s {:>9.2} s  {converged:<9}  {:>9.2}%  {:>5.1}%  {inside}",
             sampled.family.name(),
             r.morph_frames,
             r.settle_frames,
             time[0],
             time[1],
-            if r.converged {
-                "yes".to_string()
-            } else {
-                format!(
-                    "NO ({})",
-                    r.failure.map(|f| f.to_string()).unwrap_or_default()
-                )
-            },
             r.strain.p95 * 100.0,
             r.strain.max * 100.0,
-            format!(
-                "{}/{}",
-                r.penetration_before_pushout.count, r.penetration.count
-            )
         );
         reports.push(r);
     }
