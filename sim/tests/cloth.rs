@@ -36,7 +36,7 @@ fn free_fall_follows_half_g_t_squared() {
     }
     let t = frames as f32 / config.fps;
     let expected = 0.5 * 9.81 * t * t;
-    for (x, x0) in solver.x.iter().zip(&cloth.vertices) {
+    for (x, x0) in solver.positions().iter().zip(&cloth.vertices) {
         let fall = x0.y - x.y;
         assert!(
             (fall - expected).abs() < 0.01 * expected,
@@ -187,7 +187,7 @@ fn tube_around_a_fast_cylinder_never_tunnels() {
         body.advance(&motion.at(k));
         solver.frame(&body);
         let axis_x = speed * k.min(30) as f32;
-        for p in &solver.x {
+        for p in &solver.positions() {
             let r = ((p.x - axis_x).powi(2) + p.z.powi(2)).sqrt();
             deepest = deepest.max(0.1 - r);
         }
@@ -197,7 +197,8 @@ fn tube_around_a_fast_cylinder_never_tunnels() {
         "a particle got {deepest} m inside the cylinder"
     );
     // The tube went along with the cylinder (1.5 m to the right).
-    let mean_x = solver.x.iter().map(|p| p.x).sum::<f32>() / solver.x.len() as f32;
+    let mean_x =
+        solver.positions().iter().map(|p| p.x).sum::<f32>() / solver.positions().len() as f32;
     assert!((mean_x - 1.5).abs() < 0.1, "tube centre at x = {mean_x}");
 }
 
@@ -231,7 +232,7 @@ fn slide(degrees: f32, mu: f32) -> f32 {
     for _ in 0..90 {
         solver.frame(&body);
     }
-    mean_distance(&solver.x, &start)
+    mean_distance(&solver.positions(), &start)
 }
 
 #[test]

@@ -480,7 +480,7 @@ pub fn drape(
 
     // Push-out and verification.
     let t = Instant::now();
-    let mut x = solver.x.clone();
+    let mut x = solver.positions();
     let finite = x.iter().all(|p| p.is_finite());
     let before = if finite {
         penetration(&body, &x)

@@ -19,7 +19,7 @@
 
 use std::time::Instant;
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -33,10 +33,10 @@ use super::model::ClothModel;
 /// linearly in between: its barycentrics are fixed for the frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Plane {
-    q0: Vec3,
-    q1: Vec3,
-    n0: Vec3,
-    n1: Vec3,
+    q0: Vec3A,
+    q1: Vec3A,
+    n0: Vec3A,
+    n1: Vec3A,
 }
 
 /// A particle's contact state.
@@ -110,18 +110,18 @@ pub struct Solver<'m> {
     pub model: &'m ClothModel,
     /// Parameters (fixed: the constraints are prepared for their substep length).
     config: SimConfig,
-    /// Positions (m).
-    pub x: Vec<Vec3>,
+    /// Positions (m), 16-byte aligned for SIMD; [`Solver::positions`] gives them as `Vec3`.
+    x: Vec<Vec3A>,
     /// Velocities (m/s).
-    pub v: Vec<Vec3>,
+    v: Vec<Vec3A>,
     /// Use rayon inside a frame (results are identical either way).
     pub parallel: bool,
     /// Time per stage so far.
     pub times: StageTimes,
     /// Substeps run so far.
     pub substeps_run: u64,
-    x_before: Vec<Vec3>,
-    x_frame: Vec<Vec3>,
+    x_before: Vec<Vec3A>,
+    x_frame: Vec<Vec3A>,
     /// Per particle: its contact this frame and its last search.
     contacts: Vec<ContactState>,
     /// Distance constraints prepared for this substep length, in colour order.
@@ -135,14 +135,20 @@ impl<'m> Solver<'m> {
         &self.config
     }
 
+    /// Particle positions (m).
+    pub fn positions(&self) -> Vec<Vec3> {
+        self.x.iter().map(|p| Vec3::from(*p)).collect()
+    }
+
     /// A solver with the cloth at `x` and at rest.
     pub fn new(model: &'m ClothModel, config: &SimConfig, x: Vec<Vec3>) -> Self {
         assert_eq!(x.len(), model.len());
+        let x: Vec<Vec3A> = x.into_iter().map(Vec3A::from).collect();
         let n = x.len();
         Self {
             model,
             config: config.clone(),
-            v: vec![Vec3::ZERO; n],
+            v: vec![Vec3A::ZERO; n],
             x_before: x.clone(),
             x_frame: x.clone(),
             x,
@@ -181,7 +187,7 @@ impl<'m> Solver<'m> {
         let (x, v, thickness, margin) = (&self.x, &self.v, c.thickness, body.margin());
         let detect = |(i, state): (usize, &mut ContactState)| {
             let travel = v[i].length() * frame_dt;
-            let moved = x[i].distance(state.searched.0) + travel;
+            let moved = Vec3::from(x[i]).distance(state.searched.0) + travel;
             let keep = match state.plane {
                 None => moved + thickness <= state.searched.1 + margin,
                 Some(_) => moved <= 0.5 * margin,
@@ -190,13 +196,14 @@ impl<'m> Solver<'m> {
                 return;
             }
             let radius = thickness + travel;
-            state.plane = body.contact(x[i], radius).map(|c| Plane {
-                q0: body.point_at(&c, 0.0),
-                q1: body.point_at(&c, 1.0),
-                n0: body.normal_at(&c, 0.0),
-                n1: body.normal_at(&c, 1.0),
+            let here = Vec3::from(x[i]);
+            state.plane = body.contact(here, radius).map(|c| Plane {
+                q0: body.point_at(&c, 0.0).into(),
+                q1: body.point_at(&c, 1.0).into(),
+                n0: body.normal_at(&c, 0.0).into(),
+                n1: body.normal_at(&c, 1.0).into(),
             });
-            state.searched = (x[i], radius);
+            state.searched = (here, radius);
         };
         if self.parallel {
             self.contacts.par_iter_mut().enumerate().for_each(detect);
@@ -206,7 +213,7 @@ impl<'m> Solver<'m> {
         self.times.detect += t0.elapsed().as_secs_f64();
         let n_contacts = self.contacts.iter().filter(|c| c.plane.is_some()).count();
 
-        let g = c.gravity();
+        let g = Vec3A::from(c.gravity());
         let vmax = c.max_velocity;
         let damp = (-c.damping * h).exp();
         let inv_h2 = 1.0 / (h * h);
@@ -221,7 +228,7 @@ impl<'m> Solver<'m> {
                 .zip(&self.model.inv_mass)
             {
                 if *w == 0.0 {
-                    *v = Vec3::ZERO;
+                    *v = Vec3A::ZERO;
                     continue;
                 }
                 *v += g * h;
@@ -251,7 +258,11 @@ impl<'m> Solver<'m> {
 
             if self.config.self_collision {
                 let t = Instant::now();
-                self.self_grid.solve(&mut self.x, &self.model.inv_mass);
+                let mut x3: Vec<Vec3> = self.x.iter().map(|p| Vec3::from(*p)).collect();
+                self.self_grid.solve(&mut x3, &self.model.inv_mass);
+                for (p, q) in self.x.iter_mut().zip(&x3) {
+                    *p = Vec3A::from(*q);
+                }
                 self.times.self_collision += t.elapsed().as_secs_f64();
             }
 
@@ -291,7 +302,7 @@ impl<'m> Solver<'m> {
     pub fn solve_distance(&mut self) {
         for c in &self.prepared {
             let (i, j) = (c.i as usize, c.j as usize);
-            let (di, dj) = c.solve(self.x[i], self.x[j]);
+            let (di, dj) = c.solve_a(self.x[i], self.x[j]);
             self.x[i] += di;
             self.x[j] += dj;
         }
@@ -302,9 +313,14 @@ impl<'m> Solver<'m> {
         for range in &m.dihedral_colours {
             for c in &m.dihedral[range.clone()] {
                 let p = c.p.map(|i| i as usize);
-                let dx = dihedral::solve(c, p.map(|i| self.x[i]), p.map(|i| m.inv_mass[i]), inv_h2);
+                let dx = dihedral::solve(
+                    c,
+                    p.map(|i| Vec3::from(self.x[i])),
+                    p.map(|i| m.inv_mass[i]),
+                    inv_h2,
+                );
                 for k in 0..4 {
-                    self.x[p[k]] += dx[k];
+                    self.x[p[k]] += Vec3A::from(dx[k]);
                 }
             }
         }
@@ -317,7 +333,7 @@ impl<'m> Solver<'m> {
         let thickness = self.config.thickness;
         let mu = self.config.friction;
         let w = &self.model.inv_mass;
-        let one = |(i, (x, (xb, state))): (usize, (&mut Vec3, (&Vec3, &ContactState)))| {
+        let one = |(i, (x, (xb, state))): (usize, (&mut Vec3A, (&Vec3A, &ContactState)))| {
             let Some(p) = &state.plane else { return };
             if w[i] == 0.0 {
                 return;

@@ -1,7 +1,7 @@
 //! Distance constraints: stretch on edges, shear and bend between particles two edges
 //! apart (the NvCloth cooker's classification), with hard stretch and compression limits.
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 use super::xpbd_delta;
 
@@ -77,6 +77,20 @@ impl Prepared {
             share_i,
             share_j,
         }
+    }
+
+    /// [`Prepared::solve`] on SIMD vectors (the solver's hot loop).
+    #[inline]
+    pub fn solve_a(&self, xi: Vec3A, xj: Vec3A) -> (Vec3A, Vec3A) {
+        let d = xi - xj;
+        let len2 = d.length_squared();
+        if len2 < 1e-24 {
+            return (Vec3A::ZERO, Vec3A::ZERO);
+        }
+        let len = len2.sqrt();
+        let target = (len - self.k * (len - self.rest)).clamp(self.min, self.max);
+        let n = d * ((target - len) / len);
+        (n * self.share_i, n * -self.share_j)
     }
 
     /// Corrections `(dx_i, dx_j)` at positions `xi`, `xj`; the same as [`solve`].
