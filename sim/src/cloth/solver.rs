@@ -302,7 +302,7 @@ impl<'m> Solver<'m> {
     pub fn solve_distance(&mut self) {
         for c in &self.prepared {
             let (i, j) = (c.i as usize, c.j as usize);
-            let (di, dj) = c.solve_a(self.x[i], self.x[j]);
+            let (di, dj) = c.solve(self.x[i], self.x[j]);
             self.x[i] += di;
             self.x[j] += dj;
         }

@@ -79,27 +79,14 @@ impl Prepared {
         }
     }
 
-    /// [`Prepared::solve`] on SIMD vectors (the solver's hot loop).
+    /// Corrections `(dx_i, dx_j)` at positions `xi`, `xj` (SIMD vectors: the solver's hot
+    /// loop); the same as [`solve`].
     #[inline]
-    pub fn solve_a(&self, xi: Vec3A, xj: Vec3A) -> (Vec3A, Vec3A) {
+    pub fn solve(&self, xi: Vec3A, xj: Vec3A) -> (Vec3A, Vec3A) {
         let d = xi - xj;
         let len2 = d.length_squared();
         if len2 < 1e-24 {
             return (Vec3A::ZERO, Vec3A::ZERO);
-        }
-        let len = len2.sqrt();
-        let target = (len - self.k * (len - self.rest)).clamp(self.min, self.max);
-        let n = d * ((target - len) / len);
-        (n * self.share_i, n * -self.share_j)
-    }
-
-    /// Corrections `(dx_i, dx_j)` at positions `xi`, `xj`; the same as [`solve`].
-    #[inline]
-    pub fn solve(&self, xi: Vec3, xj: Vec3) -> (Vec3, Vec3) {
-        let d = xi - xj;
-        let len2 = d.length_squared();
-        if len2 < 1e-24 {
-            return (Vec3::ZERO, Vec3::ZERO);
         }
         let len = len2.sqrt();
         let target = (len - self.k * (len - self.rest)).clamp(self.min, self.max);
@@ -208,7 +195,8 @@ mod tests {
         ];
         for (xj, wi, wj) in cases {
             let (a, b) = solve(&c, Vec3::ZERO, xj, wi, wj, 10.0);
-            let (p, q) = Prepared::new(&c, wi, wj, 10.0).solve(Vec3::ZERO, xj);
+            let (p, q) = Prepared::new(&c, wi, wj, 10.0).solve(Vec3A::ZERO, xj.into());
+            let (p, q) = (Vec3::from(p), Vec3::from(q));
             assert!(
                 a.distance(p) < 1e-6 && b.distance(q) < 1e-6,
                 "{a} {p} / {b} {q}"
