@@ -193,11 +193,6 @@ impl BodyCollider {
         me
     }
 
-    /// Number of body vertices.
-    pub fn vertex_count(&self) -> usize {
-        self.end.len()
-    }
-
     /// Body positions at the end of the frame.
     pub fn positions(&self) -> &[Vec3] {
         &self.end

@@ -272,11 +272,6 @@ impl ClothModel {
     pub fn is_empty(&self) -> bool {
         self.rest.is_empty()
     }
-
-    /// Total mass (kg).
-    pub fn total_mass(&self) -> f32 {
-        self.mass.iter().sum()
-    }
 }
 
 fn colour_ranges(sorted_colours: &[u32], count: u32) -> Vec<Range<usize>> {

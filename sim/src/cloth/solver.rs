@@ -97,8 +97,6 @@ pub struct FrameStats {
     pub max_displacement: f32,
     /// Kinetic energy at the end of the frame (J).
     pub kinetic_energy: f32,
-    /// Particles with a body contact this frame.
-    pub contacts: usize,
     /// False if any position became non-finite.
     pub finite: bool,
 }
@@ -211,7 +209,6 @@ impl<'m> Solver<'m> {
             self.contacts.iter_mut().enumerate().for_each(detect);
         }
         self.times.detect += t0.elapsed().as_secs_f64();
-        let n_contacts = self.contacts.iter().filter(|c| c.plane.is_some()).count();
 
         let g = Vec3A::from(c.gravity());
         let vmax = c.max_velocity;
@@ -287,7 +284,6 @@ impl<'m> Solver<'m> {
         FrameStats {
             max_displacement: max_d2.sqrt(),
             kinetic_energy: ke,
-            contacts: n_contacts,
             finite,
         }
     }

@@ -10,6 +10,8 @@
 
 use glam::Vec3;
 
+use super::xpbd_delta;
+
 /// One dihedral constraint.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Dihedral {
@@ -50,14 +52,15 @@ pub fn solve(c: &Dihedral, x: [Vec3; 4], w: [f32; 4], inv_h2: f32) -> [Vec3; 4] 
     let Some((angle, d, q)) = angle_and_q(x) else {
         return [Vec3::ZERO; 4];
     };
+    // The gradient q / s is undefined for (nearly) flat or fully folded pairs.
     let s = (1.0 - d * d).max(0.0).sqrt();
-    let sum: f32 = (0..4).map(|k| w[k] * q[k].length_squared()).sum();
-    let denom = sum + c.compliance * inv_h2 * s * s;
-    if denom <= 1e-20 {
+    if s < 1e-6 {
         return [Vec3::ZERO; 4];
     }
-    let scale = -(angle - c.rest) * s / denom;
-    [0, 1, 2, 3].map(|k| q[k] * (w[k] * scale))
+    let grad = q.map(|g| g / s);
+    let sum: f32 = (0..4).map(|k| w[k] * grad[k].length_squared()).sum();
+    let dl = xpbd_delta(angle - c.rest, sum, c.compliance * inv_h2);
+    [0, 1, 2, 3].map(|k| grad[k] * (w[k] * dl))
 }
 
 #[cfg(test)]
