@@ -11,5 +11,6 @@
 
 pub mod body;
 pub mod cloth;
+pub mod garment;
 pub mod io;
 pub mod mesh;

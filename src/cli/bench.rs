@@ -17,10 +17,16 @@ pub struct BenchArgs {
 
 #[derive(Debug, Subcommand)]
 enum BenchCommand {
-    /// Drape the garment-like tube (10,112 particles) on the default body morphing to poses
-    /// of the prior, on one thread and on all cores; prints time per drape and per stage,
-    /// peak memory and the quality figures of each drape.
+    /// Drape a garment (default: the garment-like tube, 10,112 particles) on the default
+    /// body morphing to poses of the prior, on one thread and on all cores; prints time per
+    /// drape and per stage, peak memory and the quality figures of each drape.
     Sim {
+        /// Garment: tube, tshirt, sweater, dress, jeans, an imported name or an OBJ.
+        #[arg(long, default_value = "tube", value_name = "NAME")]
+        garment: String,
+        /// About this many vertices for a built-in garment (default 10000).
+        #[arg(long, value_name = "N")]
+        resolution: Option<usize>,
         /// Number of poses (random:SEED onwards).
         #[arg(long, default_value_t = 3)]
         poses: u64,
@@ -44,6 +50,8 @@ fn peak_memory_mb() -> Option<f64> {
 /// Runs `drape bench`.
 pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     let BenchCommand::Sim {
+        garment,
+        resolution,
         poses,
         seed,
         config,
@@ -54,12 +62,12 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     };
     let (model, library) = load(ctx)?;
     let body = model.shape(&ShapeParams::default())?;
-    let tube = super::simulate::garment("tube", &body)?;
+    let tube = super::simulate::garment(&garment, resolution, ctx, &body)?;
     let cloth = ClothModel::new(&tube, &config, &[])?;
     let prior = dataset::sampling::PosePrior::new(library);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!(
-        "tube: {} particles, {} triangles, constraints stretch/shear/bend {}/{}/{}, {} colours; {} substeps at {} fps, morph {} frames",
+        "{garment}: {} particles, {} triangles, constraints stretch/shear/bend {}/{}/{}, {} colours; {} substeps at {} fps, morph {} frames",
         cloth.len(),
         tube.triangles.len(),
         cloth.kind_counts[0],

@@ -290,7 +290,7 @@ fn gallery(
 
 fn import(dir: &Path, wheel_sha256: &str, assets: &Path) -> anyhow::Result<()> {
     let t0 = Instant::now();
-    let model = sim::body::import::import(dir, wheel_sha256)?;
+    let (model, helpers) = sim::body::import::import(dir, wheel_sha256)?;
     // Check the written form decodes to the same model before replacing anything.
     let raw = model.encode();
     let back = BodyModel::decode(&raw, Path::new("(encoded asset)"))?;
@@ -326,7 +326,27 @@ fn import(dir: &Path, wheel_sha256: &str, assets: &Path) -> anyhow::Result<()> {
         .with_context(|| format!("cannot create {}", folder.display()))?;
     let asset_path = assets.join(sim::body::asset::ASSET_FILE);
     let prov_path = folder.join("PROVENANCE.md");
-    sim::io::write_all_or_nothing(&[(&asset_path, &bytes), (&prov_path, provenance.as_bytes())])?;
+    // The garments' source: MakeHuman's helper meshes on the default body.
+    let helpers_path = assets.join(sim::garment::HELPERS_FILE);
+    let helpers_obj = sim::body::import::HelperMesh::to_obj(
+        &helpers,
+        &format!(
+            "MakeHuman helper meshes {} on the default body (all shape parameters 0.5, races 1/3), metres, Y up.\nFrom {} {} (CC0 1.0), wheel sha256 {}; written by `drape body import`.",
+            sim::body::import::HELPER_GROUPS.join(", "),
+            model.provenance.package,
+            model.provenance.version,
+            model.provenance.wheel_sha256
+        ),
+    );
+    if let Some(parent) = helpers_path.parent() {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    sim::io::write_all_or_nothing(&[
+        (&asset_path, &bytes),
+        (&prov_path, provenance.as_bytes()),
+        (&helpers_path, helpers_obj.as_bytes()),
+    ])?;
     let n_deltas: usize = model.targets.iter().map(|t| t.indices.len()).sum();
     println!(
         "imported {} {}: {} vertices, {} triangles, {} bones, {} joint points, {} targets ({} sparse deltas, f16 error <= {:.2} mm), {} files read",
@@ -342,10 +362,11 @@ fn import(dir: &Path, wheel_sha256: &str, assets: &Path) -> anyhow::Result<()> {
         model.provenance.files.len(),
     );
     println!(
-        "wrote {} ({:.2} MB) and {} in {:.1} s",
+        "wrote {} ({:.2} MB), {} and {} in {:.1} s",
         asset_path.display(),
         bytes.len() as f64 / 1e6,
         prov_path.display(),
+        helpers_path.display(),
         t0.elapsed().as_secs_f64()
     );
     Ok(())

@@ -2,6 +2,7 @@
 
 mod bench;
 mod body;
+mod garment;
 mod pose_spec;
 mod simulate;
 
@@ -32,6 +33,11 @@ pub enum Command {
     /// Drape a garment on a shaped, posed body with the cloth simulator: OBJ, PNG and a
     /// quality report.
     Sim(Box<simulate::SimArgs>),
+    /// Garment templates: build the built-in ones, import your own, list them.
+    Garment(garment::GarmentArgs),
+    /// Warp a garment template to a shaped, posed body with dual quaternion skinning (the
+    /// network's input and the DQS baseline): OBJ and PNG.
+    Warp(Box<garment::WarpArgs>),
     /// Scene benchmarks that print timings and quality figures.
     Bench(bench::BenchArgs),
 }
@@ -56,6 +62,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Body(args) => body::run(args, &ctx),
         Command::Sim(args) => simulate::run(*args, &ctx),
+        Command::Garment(args) => garment::run(args, &ctx),
+        Command::Warp(args) => garment::warp(*args, &ctx),
         Command::Bench(args) => bench::run(args, &ctx),
     }
 }

@@ -15,10 +15,15 @@ use super::{Context, pose_spec};
 /// `drape sim`.
 #[derive(Debug, Args)]
 pub struct SimArgs {
-    /// Garment template: an OBJ on the canonical body (default shape, rest A-pose), or
-    /// `tube` for the built-in garment-like tube around the torso (10,112 vertices).
-    #[arg(long, value_name = "FILE.obj|tube")]
+    /// Garment: tshirt, sweater, dress, jeans, an imported name (`drape garment import`),
+    /// an OBJ on the canonical body (default shape, rest A-pose), or `tube` for the
+    /// garment-like test tube around the torso (10,112 vertices).
+    #[arg(long, value_name = "NAME|FILE.obj|tube")]
     garment: String,
+    /// About this many vertices for a built-in garment (default 10000; 3000 for CPU
+    /// training).
+    #[arg(long, value_name = "N")]
+    resolution: Option<usize>,
     #[command(flatten)]
     shape: ShapeArgs,
     /// Target pose (as for `drape body --pose`).
@@ -47,15 +52,23 @@ pub struct SimArgs {
     threads: Option<usize>,
 }
 
-/// The garment template: an OBJ file or the built-in tube.
-pub fn garment(spec: &str, canonical: &sim::body::ShapedBody<'_>) -> anyhow::Result<TriMesh> {
+/// The garment template: a garment name, an OBJ file or the test tube.
+pub fn garment(
+    spec: &str,
+    resolution: Option<usize>,
+    ctx: &Context,
+    canonical: &sim::body::ShapedBody<'_>,
+) -> anyhow::Result<TriMesh> {
+    if !spec.ends_with(".obj") && spec != "tube" {
+        return Ok(super::garment::template(ctx, spec, resolution, canonical.model)?.mesh);
+    }
     if spec == "tube" {
         // Numbered as an OBJ of it reads back, so that its drapes can warm-start it.
         return Ok(sim::cloth::scene::torso_tube(canonical, 128, 78, 0.015).in_first_use_order());
     }
     let path = Path::new(spec);
     if !path.exists() {
-        bail!("garment {spec:?}: no such file (give an OBJ path, or `tube` for the built-in tube)");
+        bail!("garment {spec:?}: no such file (give a garment name, an OBJ path, or `tube`)");
     }
     Ok(TriMesh::read_obj(path)?)
 }
@@ -71,7 +84,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
     let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
-    let mesh = garment(&args.garment, &canonical)?;
+    let mesh = garment(&args.garment, args.resolution, ctx, &canonical)?;
     let cloth = ClothModel::new(&mesh, &config, &[])?;
     let morph;
     let still;

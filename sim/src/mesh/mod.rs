@@ -1,6 +1,7 @@
 //! Triangle meshes: the one mesh type bodies, garments and drapes share.
 
 pub mod primitives;
+pub mod remesh;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -1,0 +1,147 @@
+//! Garment definitions: `configs/garments/*.toml`.
+//!
+//! A garment is one or two *parts*, each cut from a MakeHuman helper mesh by planes placed
+//! on the canonical body's skeleton, given ease (an offset along the surface normal), and,
+//! for two parts, stitched along a shared plane. See `configs/garments/tshirt.toml` for a
+//! commented example.
+
+use serde::Deserialize;
+
+/// A garment definition.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GarmentDef {
+    /// Name used on the command line (`tshirt`).
+    pub name: String,
+    /// One line for humans.
+    pub description: String,
+    /// Number of vertices of the default resolution (about; the remesher aims at it).
+    #[serde(default = "default_vertices")]
+    pub vertices: usize,
+    /// The parts, stitched together in order.
+    pub parts: Vec<PartDef>,
+    /// Where two parts are stitched: each part must have an opening on this plane.
+    #[serde(default)]
+    pub join: Option<PlaneDef>,
+    /// Clearance kept from the canonical body before relaxing (m, default 0.006).
+    #[serde(default = "default_clearance")]
+    pub clearance: f32,
+}
+
+fn default_vertices() -> usize {
+    10_000
+}
+
+fn default_clearance() -> f32 {
+    0.006
+}
+
+/// One part of a garment.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PartDef {
+    /// The helper mesh it is cut from (`helper-tights` or `helper-skirt`).
+    pub source: String,
+    /// Offset along the surface normal, the garment's looseness (m).
+    pub ease: f32,
+    /// Cuts, applied in order.
+    #[serde(default)]
+    pub cuts: Vec<CutDef>,
+    /// Skinning: `None` transfers weights from the nearest body point; a list of bones
+    /// binds the part to those bones only (a skirt follows the hips, not either leg).
+    #[serde(default)]
+    pub bones: Option<Vec<String>>,
+}
+
+/// A plane placed on the skeleton of the canonical body.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaneDef {
+    /// Bone the plane goes through.
+    pub bone: String,
+    /// Where along the bone: 0 at its head, 1 at its tail.
+    pub at: f32,
+    /// Which way the plane's normal points.
+    pub normal: Direction,
+    /// Moves the plane along its normal (m).
+    #[serde(default)]
+    pub offset: f32,
+}
+
+/// A plane's normal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Direction {
+    /// Along the bone, head to tail.
+    Bone,
+    /// World up (+Y).
+    Up,
+    /// World down (-Y).
+    Down,
+}
+
+/// A cut removes what lies beyond a plane and is connected to the seed.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CutDef {
+    /// Bone the plane goes through.
+    pub bone: String,
+    /// Where along the bone: 0 at its head, 1 at its tail.
+    pub at: f32,
+    /// Which way the plane's normal points: at the removed side.
+    pub normal: Direction,
+    /// Moves the plane along its normal (m).
+    #[serde(default)]
+    pub offset: f32,
+    /// The removed piece is the one around this bone's head.
+    pub seed: String,
+    /// Cut only within this distance of the bone's axis line (m): a sleeve cut near the
+    /// shoulder then leaves the torso alone.
+    #[serde(default)]
+    pub radius: Option<f32>,
+}
+
+impl CutDef {
+    /// The cut's plane.
+    pub fn plane(&self) -> PlaneDef {
+        PlaneDef {
+            bone: self.bone.clone(),
+            at: self.at,
+            normal: self.normal,
+            offset: self.offset,
+        }
+    }
+}
+
+impl GarmentDef {
+    /// Parses and checks a definition; `origin` names it in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self, String> {
+        let def: GarmentDef =
+            toml::from_str(text).map_err(|e| format!("{origin}: {e}"))?;
+        if def.parts.is_empty() || def.parts.len() > 2 {
+            return Err(format!("{origin}: a garment has one or two parts"));
+        }
+        if (def.parts.len() == 2) != def.join.is_some() {
+            return Err(format!(
+                "{origin}: two parts need a `join` plane, one part must not have one"
+            ));
+        }
+        if !(100..=200_000).contains(&def.vertices) {
+            return Err(format!("{origin}: vertices must be from 100 to 200000"));
+        }
+        for p in &def.parts {
+            if !(0.0..=0.2).contains(&p.ease) {
+                return Err(format!("{origin}: ease must be from 0 to 0.2 m"));
+            }
+        }
+        Ok(def)
+    }
+}
+
+/// The built-in garments, in the paper's order: name and definition text.
+pub const BUILT_IN: [(&str, &str); 4] = [
+    ("tshirt", include_str!("../../../configs/garments/tshirt.toml")),
+    ("sweater", include_str!("../../../configs/garments/sweater.toml")),
+    ("dress", include_str!("../../../configs/garments/dress.toml")),
+    ("jeans", include_str!("../../../configs/garments/jeans.toml")),
+];

@@ -1,0 +1,418 @@
+//! Garment templates: built-in garments cut from MakeHuman's CC0 helper meshes, user
+//! templates imported from OBJ, skinning weights transferred from the body, and the DQS warp
+//! `M = dqs(M0, body)`.
+//!
+//! - `def.rs`: the definitions in `configs/garments/*.toml`;
+//! - `cut.rs`: plane cuts and the stitching of two openings;
+//! - `build.rs`: definition to relaxed mesh;
+//! - `skin.rs`: bindings to the body and weight transfer;
+//! - `template.rs`: the stored template and the warp.
+//!
+//! Built templates are cached in `<assets>/garments/built/` (not committed; rebuilt when the
+//! definition, the helper meshes or the build code change), imported ones are kept in
+//! `<assets>/garments/user/`.
+
+pub mod build;
+pub mod cut;
+pub mod def;
+pub mod skin;
+pub mod template;
+
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+
+use crate::body::{BodyError, BodyModel, ShapedBody};
+use crate::cloth::collision::BodyCollider;
+use crate::cloth::{SimConfig, SimError};
+use crate::mesh::{MeshError, TriMesh, remesh};
+pub use def::GarmentDef;
+pub use template::Template;
+
+/// The garments' source meshes, relative to the assets folder (written by `drape body import`).
+pub const HELPERS_FILE: &str = "garments/source/makehuman-helpers.obj";
+
+/// Bumped whenever the build steps change, so cached templates are rebuilt.
+pub const BUILD_VERSION: u32 = 1;
+
+/// The vertex count of the CPU-training variant of the built-in garments.
+pub const LOW_RESOLUTION: usize = 3_000;
+
+/// Why a garment could not be built, imported or loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum GarmentError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the operating system said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The helper meshes file is malformed.
+    #[error("garment source {path}: {reason}")]
+    Source {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A stored template is malformed.
+    #[error("garment template {path} is corrupt: {reason}")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A definition is wrong or cannot be built.
+    #[error("garment definition: {0}")]
+    Definition(String),
+    /// No garment of that name.
+    #[error("no garment named {name:?}; built-in: tshirt, sweater, dress, jeans{user}")]
+    Unknown {
+        /// The name asked for.
+        name: String,
+        /// Imported garments, listed for the message.
+        user: String,
+    },
+    /// An imported mesh is not a usable garment.
+    #[error("cannot import {path} as a garment: {reason}")]
+    Rejected {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A mesh problem.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// A body problem.
+    #[error(transparent)]
+    Body(#[from] BodyError),
+    /// A simulator problem.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// Writing a template failed (nothing was written).
+    #[error(transparent)]
+    Write(#[from] crate::io::WriteError),
+}
+
+/// The definition of a built-in garment.
+pub fn built_in(name: &str) -> Option<GarmentDef> {
+    def::BUILT_IN
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(n, text)| {
+            GarmentDef::from_toml(text, &format!("configs/garments/{n}.toml"))
+                .expect("built-in definitions parse (tested)")
+        })
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Skins a mesh on the canonical body: bindings and weights (parts restricted to bones).
+fn skin_mesh(
+    mesh: TriMesh,
+    canonical: &ShapedBody<'_>,
+    only: &[Vec<u16>],
+) -> (TriMesh, crate::body::skinning::SkinWeights, Vec<skin::Binding>) {
+    let model = canonical.model;
+    let collider = BodyCollider::new(&canonical.vertices, &model.triangles, 0.01);
+    let bindings = skin::bind(&mesh.vertices, &collider);
+    let weights = skin::transfer_weights(
+        &mesh,
+        &bindings,
+        &model.triangles,
+        &model.skin,
+        model.skeleton.len(),
+        only,
+    );
+    (mesh, weights, bindings)
+}
+
+/// Builds a built-in (or any) definition into a template at about `vertices` vertices.
+pub fn build_template(
+    def: &GarmentDef,
+    helpers_path: &Path,
+    canonical: &ShapedBody<'_>,
+    vertices: usize,
+    key: String,
+) -> Result<Template, GarmentError> {
+    let helpers = build::read_helpers(helpers_path)?;
+    let config = SimConfig::default();
+    let built = build::build(def, &helpers, canonical, &config, vertices, true)?;
+    let parts = build::part_of(def, canonical, &built.mesh.vertices)?;
+    let skeleton = &canonical.model.skeleton;
+    let mut restricted: Vec<Vec<u16>> = Vec::new();
+    for p in &def.parts {
+        let list = match &p.bones {
+            None => Vec::new(),
+            Some(names) => names
+                .iter()
+                .map(|n| {
+                    skeleton.index(n).map(|i| i as u16).ok_or_else(|| {
+                        GarmentError::Definition(format!("{}: no bone named {n}", def.name))
+                    })
+                })
+                .collect::<Result<_, _>>()?,
+        };
+        restricted.push(list);
+    }
+    let only: Vec<Vec<u16>> = parts.iter().map(|&p| restricted[p as usize].clone()).collect();
+    let (mesh, skin, bindings) = skin_mesh(built.mesh, canonical, &only);
+    let a = built.angles;
+    Ok(Template {
+        meta: template::TemplateMeta {
+            format: template::FORMAT.to_string(),
+            name: def.name.clone(),
+            origin: "built-in".into(),
+            resolution: vertices,
+            key,
+            build: serde_json::json!({
+                "vertices": mesh.vertices.len(),
+                "triangles": mesh.triangles.len(),
+                "target_edge_m": built.edge,
+                "min_angle_deg": a.min_deg,
+                "min_angle_p1_deg": a.p1_deg,
+                "share_below_20_deg": a.share_below_20,
+                "degenerate": a.degenerate,
+                "relax_frames": built.relax_frames,
+                "relaxed": built.relaxed,
+                "relax_strain_p95": built.relax_strain_p95,
+                "seconds": built.seconds,
+            }),
+        },
+        mesh,
+        skin,
+        bindings,
+    })
+}
+
+/// Where templates live and how they are found.
+#[derive(Debug, Clone)]
+pub struct Library {
+    /// The assets folder.
+    pub assets: PathBuf,
+}
+
+impl Library {
+    /// The library of an assets folder.
+    pub fn new(assets: &Path) -> Self {
+        Self {
+            assets: assets.to_path_buf(),
+        }
+    }
+
+    fn helpers(&self) -> PathBuf {
+        self.assets.join(HELPERS_FILE)
+    }
+
+    /// Cache file of a built-in garment at a resolution.
+    pub fn built_path(&self, name: &str, vertices: usize) -> PathBuf {
+        self.assets
+            .join("garments/built")
+            .join(format!("{name}-{vertices}.safetensors"))
+    }
+
+    /// File of an imported garment.
+    pub fn user_path(&self, name: &str) -> PathBuf {
+        self.assets.join("garments/user").join(format!("{name}.safetensors"))
+    }
+
+    /// Names of the imported garments.
+    pub fn user_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(self.assets.join("garments/user"))
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| {
+                e.file_name()
+                    .to_str()?
+                    .strip_suffix(".safetensors")
+                    .map(str::to_string)
+            })
+            .collect();
+        names.sort();
+        names
+    }
+
+    /// The cache key of a built-in definition: its text, the helper meshes, the build code.
+    pub fn key(&self, text: &str) -> Result<String, GarmentError> {
+        let path = self.helpers();
+        let helpers = std::fs::read(&path).map_err(|source| GarmentError::Io { path, source })?;
+        let mut h = Sha256::new();
+        h.update(text.as_bytes());
+        h.update(&helpers);
+        h.update(BUILD_VERSION.to_le_bytes());
+        Ok(hex(&h.finalize()))
+    }
+
+    /// Builds a built-in garment (no cache).
+    pub fn build(
+        &self,
+        name: &str,
+        vertices: usize,
+        canonical: &ShapedBody<'_>,
+    ) -> Result<Template, GarmentError> {
+        let (_, text) = def::BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == name)
+            .ok_or_else(|| self.unknown(name))?;
+        let def = GarmentDef::from_toml(text, &format!("configs/garments/{name}.toml"))
+            .map_err(GarmentError::Definition)?;
+        build_template(&def, &self.helpers(), canonical, vertices, self.key(text)?)
+    }
+
+    fn unknown(&self, name: &str) -> GarmentError {
+        let user = self.user_names();
+        GarmentError::Unknown {
+            name: name.to_string(),
+            user: if user.is_empty() {
+                String::new()
+            } else {
+                format!("; imported: {}", user.join(", "))
+            },
+        }
+    }
+
+    /// A garment by name: a built-in one at `vertices` (from the cache, built and cached on
+    /// first use) or an imported one. `built` is told when a build happens (it takes seconds).
+    pub fn get(
+        &self,
+        name: &str,
+        vertices: usize,
+        model: &BodyModel,
+        built: &mut dyn FnMut(&str),
+    ) -> Result<Template, GarmentError> {
+        let bones = model.skeleton.len();
+        let tris = model.triangles.len();
+        if let Some((_, text)) = def::BUILT_IN.iter().find(|(n, _)| *n == name) {
+            let path = self.built_path(name, vertices);
+            let key = self.key(text)?;
+            if path.exists() {
+                if let Ok(t) = Template::load(&path, tris, bones) {
+                    if t.meta.key == key {
+                        return Ok(t);
+                    }
+                }
+            }
+            built(&format!("building {name} at {vertices} vertices (cached in {})", path.display()));
+            let canonical = model.shape(&Default::default())?;
+            let t = self.build(name, vertices, &canonical)?;
+            if let Some(dir) = path.parent() {
+                std::fs::create_dir_all(dir).map_err(|source| GarmentError::Io {
+                    path: dir.to_path_buf(),
+                    source,
+                })?;
+            }
+            crate::io::write_all_or_nothing(&[(&path, &t.encode())])?;
+            return Ok(t);
+        }
+        let path = self.user_path(name);
+        if path.exists() {
+            return Template::load(&path, tris, bones);
+        }
+        Err(self.unknown(name))
+    }
+
+    /// Imports a user's OBJ as garment `name` (see [`import_mesh`]) and stores it.
+    pub fn import(
+        &self,
+        obj: &Path,
+        name: &str,
+        model: &BodyModel,
+    ) -> Result<(Template, PathBuf), GarmentError> {
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            return Err(GarmentError::Rejected {
+                path: obj.to_path_buf(),
+                reason: format!("name {name:?}: use letters, digits, - and _"),
+            });
+        }
+        if built_in(name).is_some() {
+            return Err(GarmentError::Rejected {
+                path: obj.to_path_buf(),
+                reason: format!("{name} is a built-in garment; choose another name"),
+            });
+        }
+        let mesh = TriMesh::read_obj(obj)?.in_first_use_order();
+        let canonical = model.shape(&Default::default())?;
+        let t = import_mesh(mesh, name, obj, &canonical)?;
+        let path = self.user_path(name);
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|source| GarmentError::Io {
+                path: dir.to_path_buf(),
+                source,
+            })?;
+        }
+        crate::io::write_all_or_nothing(&[(&path, &t.encode())])?;
+        Ok((t, path))
+    }
+}
+
+/// Checks a user's garment mesh on the canonical body and skins it: manifold edges, no
+/// degenerate faces, a plausible size (0.1 to 2.5 m across), placed around the body, no
+/// vertex inside the body. `path` names it in errors.
+pub fn import_mesh(
+    mesh: TriMesh,
+    name: &str,
+    path: &Path,
+    canonical: &ShapedBody<'_>,
+) -> Result<Template, GarmentError> {
+    let reject = |reason: String| GarmentError::Rejected {
+        path: path.to_path_buf(),
+        reason,
+    };
+    crate::cloth::model::validate_mesh(&mesh).map_err(reject)?;
+    let stats = remesh::angle_stats(&mesh);
+    if stats.degenerate > 0 {
+        return Err(reject(format!("{} degenerate triangles", stats.degenerate)));
+    }
+    let (lo, hi) = crate::mesh::bounds(&mesh.vertices).expect("validated: not empty");
+    let size = (hi - lo).max_element();
+    if !(0.1..=2.5).contains(&size) {
+        return Err(reject(format!(
+            "it is {size:.3} units across; garments are 0.1 to 2.5 m (is the OBJ in metres?)"
+        )));
+    }
+    let collider = BodyCollider::new(&canonical.vertices, &canonical.model.triangles, 0.01);
+    crate::cloth::drape::check_placement(&collider, &mesh.vertices)
+        .map_err(|e| reject(e.to_string()))?;
+    let inside = mesh
+        .vertices
+        .iter()
+        .filter(|p| collider.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0))
+        .count();
+    if inside > 0 {
+        return Err(reject(format!(
+            "{inside} vertices lie inside the canonical body in its rest pose; the template must be outside it"
+        )));
+    }
+    let (mesh, skin, bindings) = skin_mesh(mesh, canonical, &[]);
+    Ok(Template {
+        meta: template::TemplateMeta {
+            format: template::FORMAT.to_string(),
+            name: name.to_string(),
+            origin: "imported".into(),
+            resolution: 0,
+            key: String::new(),
+            build: serde_json::json!({
+                "source": path.display().to_string(),
+                "vertices": mesh.vertices.len(),
+                "triangles": mesh.triangles.len(),
+                "min_angle_deg": stats.min_deg,
+                "share_below_20_deg": stats.share_below_20,
+            }),
+        },
+        mesh,
+        skin,
+        bindings,
+    })
+}

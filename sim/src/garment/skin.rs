@@ -1,0 +1,135 @@
+//! Skinning a garment from the body: each garment vertex is bound to its closest point on the
+//! canonical body (triangle and barycentrics); the body's weights at that point, smoothed over
+//! the garment, become the garment's weights; the point's motion under a shape change carries
+//! the vertex to a new body shape (see [`super::warp`]).
+
+use glam::Vec3;
+
+use crate::body::skinning::SkinWeights;
+use crate::cloth::collision::BodyCollider;
+use crate::mesh::TriMesh;
+
+/// Where a garment vertex is attached to the canonical body.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Binding {
+    /// Body triangle.
+    pub triangle: u32,
+    /// Barycentric coordinates of the closest point in it.
+    pub bary: [f32; 3],
+}
+
+/// Rounds of neighbour averaging of the transferred weights: enough to blur the seams of the
+/// body's weight map over a few garment edges, not enough to move a sleeve's weights to the
+/// torso.
+pub const SMOOTHING_ROUNDS: usize = 8;
+
+/// Binds every vertex to its closest point on the body.
+pub fn bind(points: &[Vec3], body: &BodyCollider) -> Vec<Binding> {
+    points
+        .iter()
+        .map(|&p| {
+            // Search wider and wider: a flared skirt's hem can be 30 cm from the legs.
+            let hit = [0.05, 0.2, 1.0, 5.0]
+                .iter()
+                .find_map(|&r| body.closest(p, r))
+                .expect("the body is within 5 m of every garment vertex");
+            Binding {
+                triangle: hit.contact.tri,
+                bary: hit.contact.bary,
+            }
+        })
+        .collect()
+}
+
+/// Transfers the body's skinning weights to the garment.
+///
+/// `only[v]`, when not empty, lists the only bones vertex `v` may follow (a skirt follows the
+/// hips, never one leg): its weights are replaced by those bones' share of the transferred
+/// weights, or by equal shares when the body point has none of them. The weights are then
+/// averaged with the mesh neighbours' [`SMOOTHING_ROUNDS`] times (each round: half its own,
+/// half the neighbours' mean), and the four largest kept and renormalised.
+pub fn transfer_weights(
+    garment: &TriMesh,
+    bindings: &[Binding],
+    body_triangles: &[[u32; 3]],
+    body_skin: &SkinWeights,
+    bones: usize,
+    only: &[Vec<u16>],
+) -> SkinWeights {
+    let n = garment.vertices.len();
+    let mut dense = vec![0.0f32; n * bones];
+    for (v, b) in bindings.iter().enumerate() {
+        let row = &mut dense[v * bones..(v + 1) * bones];
+        let tri = body_triangles[b.triangle as usize];
+        for (k, &bv) in tri.iter().enumerate() {
+            let (ib, w) = (&body_skin.bones[bv as usize], &body_skin.weights[bv as usize]);
+            for s in 0..4 {
+                row[ib[s] as usize] += b.bary[k] * w[s];
+            }
+        }
+        if let Some(allowed) = only.get(v).filter(|a| !a.is_empty()) {
+            let kept: f32 = allowed.iter().map(|&a| row[a as usize]).sum();
+            let restricted: Vec<f32> = allowed
+                .iter()
+                .map(|&a| {
+                    if kept > 1e-6 {
+                        row[a as usize] / kept
+                    } else {
+                        1.0 / allowed.len() as f32
+                    }
+                })
+                .collect();
+            row.fill(0.0);
+            for (&a, w) in allowed.iter().zip(restricted) {
+                row[a as usize] = w;
+            }
+        }
+    }
+
+    // Neighbour lists in a fixed order.
+    let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for t in &garment.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            neighbours[a as usize].push(b);
+            neighbours[b as usize].push(a);
+        }
+    }
+    for l in &mut neighbours {
+        l.sort_unstable();
+        l.dedup();
+    }
+    for _ in 0..SMOOTHING_ROUNDS {
+        let mut next = dense.clone();
+        for v in 0..n {
+            let nb = &neighbours[v];
+            if nb.is_empty() {
+                continue;
+            }
+            let inv = 1.0 / nb.len() as f32;
+            for j in 0..bones {
+                let mean: f32 = nb.iter().map(|&u| dense[u as usize * bones + j]).sum::<f32>() * inv;
+                next[v * bones + j] = 0.5 * dense[v * bones + j] + 0.5 * mean;
+            }
+        }
+        dense = next;
+    }
+
+    let mut skin = SkinWeights::default();
+    for v in 0..n {
+        let row = &dense[v * bones..(v + 1) * bones];
+        let mut order: Vec<usize> = (0..bones).collect();
+        order.sort_by(|&a, &b| row[b].total_cmp(&row[a]).then(a.cmp(&b)));
+        let top = &order[..4.min(bones)];
+        let sum: f32 = top.iter().map(|&j| row[j]).sum();
+        let mut b = [top[0] as u16; 4];
+        let mut w = [0.0; 4];
+        for (k, &j) in top.iter().enumerate() {
+            b[k] = j as u16;
+            w[k] = if sum > 0.0 { row[j] / sum } else { 0.25 };
+        }
+        skin.bones.push(b);
+        skin.weights.push(w);
+    }
+    skin
+}

@@ -1,0 +1,255 @@
+//! A garment template: the mesh on the canonical body in its rest pose, its skinning weights
+//! and body bindings, stored as safetensors (readable from Python with
+//! `safetensors.numpy.load_file`).
+//!
+//! Tensors: `vertices` f32 [V, 3] (m, Y up), `triangles` u32 [F, 3], `skin_bones` u8 [V, 4],
+//! `skin_weights` f32 [V, 4], `bind_triangle` u32 [V] (canonical body triangle),
+//! `bind_bary` f32 [V, 3]. Metadata key `drape`: JSON [`TemplateMeta`].
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::Vec3;
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde::{Deserialize, Serialize};
+
+use super::GarmentError;
+use super::skin::Binding;
+use crate::body::skinning::{self, SkinWeights};
+use crate::body::{PosedBody, ShapedBody};
+use crate::mesh::TriMesh;
+
+/// Format tag of the template files.
+pub const FORMAT: &str = "drape-garment-template/1";
+
+/// What a template is and how it was made.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TemplateMeta {
+    /// Format tag, [`FORMAT`].
+    pub format: String,
+    /// Garment name.
+    pub name: String,
+    /// `built-in` (from `configs/garments`) or `imported` (from a user's OBJ).
+    pub origin: String,
+    /// Requested vertex count (built-in) or 0 (imported).
+    pub resolution: usize,
+    /// sha256 of the definition text and the build code version it was built from (built-in).
+    pub key: String,
+    /// Free-form build figures (edge length, angles, relaxation, seconds).
+    pub build: serde_json::Value,
+}
+
+/// A garment template.
+#[derive(Debug, Clone)]
+pub struct Template {
+    /// Metadata.
+    pub meta: TemplateMeta,
+    /// The mesh on the canonical body in its rest pose (its rest shape).
+    pub mesh: TriMesh,
+    /// Skinning weights transferred from the body.
+    pub skin: SkinWeights,
+    /// Closest canonical body point of each vertex.
+    pub bindings: Vec<Binding>,
+}
+
+fn f32s(v: impl IntoIterator<Item = f32>) -> Vec<u8> {
+    v.into_iter().flat_map(f32::to_le_bytes).collect()
+}
+
+fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
+    v.into_iter().flat_map(u32::to_le_bytes).collect()
+}
+
+impl Template {
+    /// Number of vertices.
+    pub fn len(&self) -> usize {
+        self.mesh.vertices.len()
+    }
+
+    /// True for an empty mesh.
+    pub fn is_empty(&self) -> bool {
+        self.mesh.vertices.is_empty()
+    }
+
+    /// Safetensors bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let (v, f) = (self.mesh.vertices.len(), self.mesh.triangles.len());
+        let buffers: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = vec![
+            (
+                "vertices",
+                Dtype::F32,
+                vec![v, 3],
+                f32s(self.mesh.vertices.iter().flat_map(|p| p.to_array())),
+            ),
+            (
+                "triangles",
+                Dtype::U32,
+                vec![f, 3],
+                u32s(self.mesh.triangles.iter().flatten().copied()),
+            ),
+            (
+                "skin_bones",
+                Dtype::U8,
+                vec![v, 4],
+                self.skin.bones.iter().flatten().map(|&b| b as u8).collect(),
+            ),
+            (
+                "skin_weights",
+                Dtype::F32,
+                vec![v, 4],
+                f32s(self.skin.weights.iter().flatten().copied()),
+            ),
+            (
+                "bind_triangle",
+                Dtype::U32,
+                vec![v],
+                u32s(self.bindings.iter().map(|b| b.triangle)),
+            ),
+            (
+                "bind_bary",
+                Dtype::F32,
+                vec![v, 3],
+                f32s(self.bindings.iter().flat_map(|b| b.bary)),
+            ),
+        ];
+        let views: Vec<(&str, TensorView<'_>)> = buffers
+            .iter()
+            .map(|(name, dtype, shape, data)| {
+                (*name, TensorView::new(*dtype, shape.clone(), data).expect("sizes match"))
+            })
+            .collect();
+        let mut info = HashMap::new();
+        info.insert(
+            "drape".to_string(),
+            serde_json::to_string(&self.meta).expect("metadata serialises"),
+        );
+        safetensors::tensor::serialize(views, Some(info)).expect("tensors serialise")
+    }
+
+    /// Reads a template file, checking every tensor's type and shape and every index.
+    pub fn load(path: &Path, body_triangles: usize, bones: usize) -> Result<Self, GarmentError> {
+        let bytes = std::fs::read(path).map_err(|source| GarmentError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let bad = |reason: String| GarmentError::Corrupt {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let (_, header) =
+            SafeTensors::read_metadata(&bytes).map_err(|e| bad(format!("safetensors: {e}")))?;
+        let meta: TemplateMeta = header
+            .metadata()
+            .as_ref()
+            .and_then(|m| m.get("drape"))
+            .ok_or_else(|| bad("no `drape` metadata".into()))
+            .and_then(|j| serde_json::from_str(j).map_err(|e| bad(format!("metadata: {e}"))))?;
+        if meta.format != FORMAT {
+            return Err(bad(format!("format {:?}, expected {FORMAT:?}", meta.format)));
+        }
+        let st = SafeTensors::deserialize(&bytes).map_err(|e| bad(format!("safetensors: {e}")))?;
+        let get = |name: &str, dtype: Dtype, shape_tail: &[usize]| {
+            let t = st
+                .tensor(name)
+                .map_err(|_| bad(format!("tensor {name} missing")))?;
+            let s = t.shape();
+            if t.dtype() != dtype || s.len() != 1 + shape_tail.len() || &s[1..] != shape_tail {
+                return Err(bad(format!(
+                    "tensor {name} is {:?} {s:?}, expected {dtype:?} [n, {shape_tail:?}]",
+                    t.dtype()
+                )));
+            }
+            Ok((s[0], t.data().to_vec()))
+        };
+        let as_f32 = |d: &[u8]| -> Vec<f32> {
+            d.chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect()
+        };
+        let as_u32 = |d: &[u8]| -> Vec<u32> {
+            d.chunks_exact(4)
+                .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect()
+        };
+        let (nv, vd) = get("vertices", Dtype::F32, &[3])?;
+        let (nf, fd) = get("triangles", Dtype::U32, &[3])?;
+        let (nb, bd) = get("skin_bones", Dtype::U8, &[4])?;
+        let (nw, wd) = get("skin_weights", Dtype::F32, &[4])?;
+        let (nt, td) = get("bind_triangle", Dtype::U32, &[])?;
+        let (nc, cd) = get("bind_bary", Dtype::F32, &[3])?;
+        if [nb, nw, nt, nc].iter().any(|&n| n != nv) {
+            return Err(bad("per-vertex tensors differ in length".into()));
+        }
+        let vertices: Vec<Vec3> = as_f32(&vd).chunks_exact(3).map(Vec3::from_slice).collect();
+        if vertices.iter().any(|p| !p.is_finite()) {
+            return Err(bad("non-finite vertex".into()));
+        }
+        let flat = as_u32(&fd);
+        if flat.iter().any(|&i| i as usize >= nv) {
+            return Err(bad("a triangle indexes beyond the vertices".into()));
+        }
+        let triangles: Vec<[u32; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        debug_assert_eq!(triangles.len(), nf);
+        if bd.iter().any(|&b| b as usize >= bones) {
+            return Err(bad("a skinning bone is not in the rig".into()));
+        }
+        let skin = SkinWeights {
+            bones: bd
+                .chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]].map(u16::from))
+                .collect(),
+            weights: as_f32(&wd).chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect(),
+        };
+        let tri = as_u32(&td);
+        if tri.iter().any(|&t| t as usize >= body_triangles) {
+            return Err(bad("a binding names a triangle the body does not have".into()));
+        }
+        let bindings = tri
+            .iter()
+            .zip(as_f32(&cd).chunks_exact(3))
+            .map(|(&triangle, c)| Binding {
+                triangle,
+                bary: [c[0], c[1], c[2]],
+            })
+            .collect();
+        Ok(Self {
+            meta,
+            mesh: TriMesh::new(vertices, triangles),
+            skin,
+            bindings,
+        })
+    }
+
+    /// The template carried to a new body shape: each vertex moves as its bound point of the
+    /// body does between the canonical and the `shaped` body (rest pose).
+    pub fn reshape(&self, canonical: &ShapedBody<'_>, shaped: &ShapedBody<'_>) -> Vec<Vec3> {
+        let tris = &canonical.model.triangles;
+        self.mesh
+            .vertices
+            .iter()
+            .zip(&self.bindings)
+            .map(|(&p, b)| {
+                let t = tris[b.triangle as usize];
+                let moved: Vec3 = (0..3)
+                    .map(|k| {
+                        let i = t[k] as usize;
+                        (shaped.vertices[i] - canonical.vertices[i]) * b.bary[k]
+                    })
+                    .sum();
+                p + moved
+            })
+            .collect()
+    }
+
+    /// The DQS warp `M = dqs(M0, body)` of the paper: the template reshaped to the body
+    /// ([`Self::reshape`]) and posed with dual quaternion skinning by its weights and the
+    /// posed body's skinning transforms.
+    pub fn warp(
+        &self,
+        canonical: &ShapedBody<'_>,
+        shaped: &ShapedBody<'_>,
+        posed: &PosedBody,
+    ) -> Vec<Vec3> {
+        skinning::dqs(&self.reshape(canonical, shaped), &self.skin, &posed.skinning)
+    }
+}
