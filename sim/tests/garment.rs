@@ -1,0 +1,243 @@
+//! The built-in garments: openings, fit on the canonical body, triangle quality, the warp,
+//! deterministic builds and rejected imports. Built at the 3k-vertex resolution to keep CI
+//! short; the same code builds the 10k ones.
+
+use std::sync::OnceLock;
+
+use glam::Vec3;
+use sim::body::asset::{BodyModel, default_assets_dir};
+use sim::body::pose::Pose;
+use sim::cloth::BodyCollider;
+use sim::garment::{self, GarmentError, Template, cut, def::BUILT_IN};
+use sim::mesh::{TriMesh, remesh};
+
+const RESOLUTION: usize = 3_000;
+
+fn model() -> &'static BodyModel {
+    static M: OnceLock<BodyModel> = OnceLock::new();
+    M.get_or_init(|| BodyModel::load_default().unwrap())
+}
+
+/// The four garments built once (not from the cache: the build itself is under test).
+fn built() -> &'static Vec<Template> {
+    static T: OnceLock<Vec<Template>> = OnceLock::new();
+    T.get_or_init(|| {
+        let canonical = model().shape(&Default::default()).unwrap();
+        let lib = garment::Library::new(&default_assets_dir());
+        BUILT_IN
+            .iter()
+            .map(|(name, _)| lib.build(name, RESOLUTION, &canonical).unwrap())
+            .collect()
+    })
+}
+
+#[test]
+fn every_garment_has_its_openings() {
+    for t in built() {
+        let loops = cut::directed_boundary_loops(&t.mesh);
+        let expected = if t.meta.name == "jeans" { 3 } else { 4 };
+        assert_eq!(loops.len(), expected, "{}: {} openings", t.meta.name, loops.len());
+        // And nothing else is open or torn: every edge has one or two triangles.
+        sim::cloth::model::validate_mesh(&t.mesh).unwrap();
+    }
+}
+
+#[test]
+fn garments_rest_outside_the_canonical_body() {
+    let canonical = model().shape(&Default::default()).unwrap();
+    let body = BodyCollider::new(&canonical.vertices, &model().triangles, 0.01);
+    for t in built() {
+        let inside = t
+            .mesh
+            .vertices
+            .iter()
+            .filter(|p| body.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0) || body.inside(**p))
+            .count();
+        assert_eq!(inside, 0, "{}: {inside} vertices inside the body", t.meta.name);
+        assert_eq!(t.meta.build["relaxed"], true, "{}: relaxation did not converge", t.meta.name);
+    }
+}
+
+#[test]
+fn triangles_are_well_shaped_and_the_resolution_is_as_asked() {
+    for t in built() {
+        let a = remesh::angle_stats(&t.mesh);
+        assert_eq!(a.degenerate, 0, "{}", t.meta.name);
+        assert!(a.share_below_20 <= 0.01, "{}: {:?}", t.meta.name, a);
+        let n = t.len() as f32;
+        assert!(
+            (n - RESOLUTION as f32).abs() < 0.15 * RESOLUTION as f32,
+            "{}: {n} vertices for {RESOLUTION}",
+            t.meta.name
+        );
+    }
+}
+
+#[test]
+fn the_warp_onto_the_canonical_body_at_rest_is_the_template() {
+    let canonical = model().shape(&Default::default()).unwrap();
+    let rest = canonical.pose(&Pose::rest(model().skeleton.len()));
+    for t in built() {
+        let w = t.warp(&canonical, &canonical, &rest);
+        let worst = w
+            .iter()
+            .zip(&t.mesh.vertices)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "{}: moved {worst} m", t.meta.name);
+    }
+}
+
+#[test]
+fn the_warp_follows_shape_and_pose() {
+    // A taller body: the jeans' hems go down with the ankles.
+    let canonical = model().shape(&Default::default()).unwrap();
+    let tall = model()
+        .shape(&sim::body::ShapeParams {
+            height: 0.62,
+            ..Default::default()
+        })
+        .unwrap();
+    let jeans = built().iter().find(|t| t.meta.name == "jeans").unwrap();
+    let rest = tall.pose(&Pose::rest(model().skeleton.len()));
+    let w = jeans.warp(&canonical, &tall, &rest);
+    let low = |x: &[Vec3]| x.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    let body_low = |x: &[Vec3]| x.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    let dropped = low(&jeans.mesh.vertices) - low(&w);
+    let body_dropped = body_low(&canonical.vertices) - body_low(&tall.vertices);
+    assert!(
+        (dropped - body_dropped).abs() < 0.02,
+        "hem moved {dropped} m, soles {body_dropped} m"
+    );
+}
+
+#[test]
+fn the_skirt_follows_the_hips_only() {
+    let dress = built().iter().find(|t| t.meta.name == "dress").unwrap();
+    let sk = &model().skeleton;
+    let legs: Vec<u16> = ["LeftUpLeg", "RightUpLeg", "LeftLeg", "RightLeg"]
+        .iter()
+        .map(|n| sk.index(n).unwrap() as u16)
+        .collect();
+    // Below mid-thigh only the hips move the skirt.
+    let knee_y = -0.2;
+    for (p, (b, w)) in dress
+        .mesh
+        .vertices
+        .iter()
+        .zip(dress.skin.bones.iter().zip(&dress.skin.weights))
+    {
+        if p.y < knee_y {
+            for k in 0..4 {
+                assert!(
+                    w[k] < 1e-3 || !legs.contains(&b[k]),
+                    "a skirt vertex at {p} follows a leg with weight {}",
+                    w[k]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn building_twice_gives_the_same_template() {
+    let canonical = model().shape(&Default::default()).unwrap();
+    let lib = garment::Library::new(&default_assets_dir());
+    let again = lib.build("tshirt", RESOLUTION, &canonical).unwrap();
+    let first = built().iter().find(|t| t.meta.name == "tshirt").unwrap();
+    assert_eq!(again.mesh, first.mesh);
+    assert_eq!(again.skin, first.skin);
+    assert_eq!(again.bindings, first.bindings);
+}
+
+#[test]
+fn templates_round_trip_through_their_file() {
+    let t = &built()[0];
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.safetensors");
+    std::fs::write(&path, t.encode()).unwrap();
+    let back = Template::load(&path, model().triangles.len(), model().skeleton.len()).unwrap();
+    assert_eq!(back.mesh, t.mesh);
+    assert_eq!(back.skin, t.skin);
+    assert_eq!(back.bindings, t.bindings);
+    // (serde_json parses floats to the nearest few ulps, so the build figures are compared
+    // by their fields.)
+    assert_eq!((&back.meta.name, &back.meta.key), (&t.meta.name, &t.meta.key));
+    assert_eq!(back.meta.build["vertices"], t.meta.build["vertices"]);
+    // A truncated file is refused with a reason.
+    std::fs::write(&path, &t.encode()[..100]).unwrap();
+    let err = Template::load(&path, model().triangles.len(), model().skeleton.len()).unwrap_err();
+    assert!(matches!(err, GarmentError::Corrupt { .. }), "{err}");
+}
+
+fn import(mesh: TriMesh) -> Result<Template, GarmentError> {
+    let canonical = model().shape(&Default::default()).unwrap();
+    garment::import_mesh(mesh, "mine", std::path::Path::new("mine.obj"), &canonical)
+}
+
+#[test]
+fn a_good_user_garment_is_imported_and_skinned() {
+    // The built T-shirt, as a user would bring it.
+    let t = &built()[0];
+    let imported = import(t.mesh.clone()).unwrap();
+    assert_eq!(imported.len(), t.len());
+    assert_eq!(imported.meta.origin, "imported");
+    // Sleeve ends follow the arms.
+    let sk = &model().skeleton;
+    let left_arm = sk.index("LeftArm").unwrap() as u16;
+    let sleeve = imported
+        .mesh
+        .vertices
+        .iter()
+        .position(|p| p.x > 0.25)
+        .expect("a sleeve vertex");
+    assert!(imported.skin.bones[sleeve].contains(&left_arm));
+}
+
+#[test]
+fn bad_user_garments_are_rejected_with_a_reason() {
+    let t = &built()[0];
+    let reason = |r: Result<Template, GarmentError>| match r {
+        Err(GarmentError::Rejected { reason, .. }) => reason,
+        other => panic!("expected a rejection, got {:?}", other.map(|t| t.len())),
+    };
+    // Centimetres instead of metres.
+    let mut big = t.mesh.clone();
+    big.vertices.iter_mut().for_each(|p| *p *= 100.0);
+    assert!(reason(import(big)).contains("across"));
+    // Shrunk into the body.
+    let mut small = t.mesh.clone();
+    let c = small.vertices.iter().copied().sum::<Vec3>() / small.vertices.len() as f32;
+    small.vertices.iter_mut().for_each(|p| *p = c + (*p - c) * 0.8);
+    let r = reason(import(small));
+    assert!(r.contains("inside"), "{r}");
+    // Far from the body.
+    let mut away = t.mesh.clone();
+    away.vertices.iter_mut().for_each(|p| p.z += 1.0);
+    assert!(reason(import(away)).contains("around the body"));
+    // Non-manifold: one edge shared by three faces.
+    let mut bad = t.mesh.clone();
+    let shared = |a: u32, b: u32| {
+        bad.triangles
+            .iter()
+            .filter(|t| t.contains(&a) && t.contains(&b))
+            .count()
+    };
+    let [a, b, _] = *bad
+        .triangles
+        .iter()
+        .find(|t| shared(t[0], t[1]) == 2)
+        .expect("an interior edge");
+    let extra = bad.vertices[a as usize] + Vec3::new(0.0, 0.0, 0.05);
+    bad.vertices.push(extra);
+    bad.triangles.push([a, b, bad.vertices.len() as u32 - 1]);
+    assert!(reason(import(bad)).contains("non-manifold"));
+}
+
+/// Garments by name: unknown names list what exists.
+#[test]
+fn unknown_garments_are_named_in_the_error() {
+    let lib = garment::Library::new(&default_assets_dir());
+    let err = lib.get("kilt", 3000, model(), &mut |_| {}).unwrap_err();
+    assert!(err.to_string().contains("tshirt, sweater, dress, jeans"), "{err}");
+}
