@@ -393,3 +393,120 @@ fn sim_rejects_bad_garments_and_configs() {
     sim(&good, &["--config", &config], "substeps");
     sim("no-such-garment.obj", &[], "no such file");
 }
+
+/// A private assets folder (body and garment sources copied), so that garment caches and
+/// imports stay out of the source tree.
+fn private_assets() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets");
+    for rel in [
+        "body/body.safetensors.gz",
+        "garments/source/makehuman-helpers.obj",
+    ] {
+        let to = dir.path().join(rel);
+        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+        std::fs::copy(src.join(rel), &to).unwrap();
+    }
+    dir
+}
+
+fn count(obj: &Path, prefix: &str) -> usize {
+    std::fs::read_to_string(obj)
+        .unwrap()
+        .lines()
+        .filter(|l| l.starts_with(prefix))
+        .count()
+}
+
+#[test]
+fn garments_build_once_warp_and_drape_by_name() {
+    let assets = private_assets();
+    let a = assets.path().to_str().unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let p = |f: &str| out.path().join(f).to_str().unwrap().to_string();
+    let (t_obj, t_png) = (p("t.obj"), p("t.png"));
+    let build = ["--assets", a, "garment", "build", "tshirt", "--resolution", "1000"];
+    let o = drape(&[&build[..], &["-o", &t_obj, "--png", &t_png]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("building tshirt"));
+    let n = count(Path::new(&t_obj), "v ");
+    assert!((850..1150).contains(&n), "{n} vertices for 1000");
+    assert!(blue_share(Path::new(&t_png)) > 0.03);
+    // The second time it comes from the cache.
+    let o = drape(&build);
+    assert!(o.status.success() && !stderr(&o).contains("building"), "{}", stderr(&o));
+    let o = drape(&["--assets", a, "garment", "list"]);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("cached: 1000"));
+
+    // The DQS warp onto a tall body in a sampled pose keeps the template's faces.
+    let w_obj = p("w.obj");
+    let warp = [
+        "--assets", a, "warp", "--garment", "tshirt", "--resolution", "1000", "--height", "0.6",
+        "--pose", "random:3", "-o", &w_obj, "--png", &p("w.png"),
+    ];
+    let o = drape(&warp);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(count(Path::new(&w_obj), "v "), n);
+    assert_eq!(count(Path::new(&w_obj), "f "), count(Path::new(&t_obj), "f "));
+
+    // And the simulator drapes it by name.
+    let sim = [
+        "--assets", a, "sim", "--garment", "tshirt", "--resolution", "1000", "--pose", "random:3",
+        "-o", &p("d.obj"), "--report", &p("d.json"),
+    ];
+    let o = drape(&sim);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(p("d.json")).unwrap()).unwrap();
+    assert_eq!(report["converged"], true);
+}
+
+#[test]
+fn user_garments_are_imported_checked_and_usable() {
+    let assets = private_assets();
+    let a = assets.path().to_str().unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let t_obj = out.path().join("t.obj");
+    let t = t_obj.to_str().unwrap();
+    let o = drape(&["--assets", a, "garment", "build", "dress", "--resolution", "800", "-o", t]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = drape(&["--assets", a, "garment", "import", t, "--name", "my-dress"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(assets.path().join("garments/user/my-dress.safetensors").exists());
+    let w = out.path().join("w.obj");
+    let o = drape(&[
+        "--assets", a, "warp", "--garment", "my-dress", "--pose", "random:1", "-o",
+        w.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+
+    // Bad imports write nothing.
+    let user = assets.path().join("garments/user");
+    let before = std::fs::read_dir(&user).unwrap().count();
+    let cm = out.path().join("cm.obj");
+    let text = std::fs::read_to_string(&t_obj).unwrap();
+    let scaled: String = text
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(rest) => {
+                let c: Vec<f32> = rest.split_whitespace().map(|s| s.parse().unwrap()).collect();
+                format!("v {} {} {}\n", c[0] * 100.0, c[1] * 100.0, c[2] * 100.0)
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(&cm, scaled).unwrap();
+    for (args, expect) in [
+        (vec!["garment", "import", cm.to_str().unwrap(), "--name", "big"], "metres"),
+        (vec!["garment", "import", t, "--name", "tshirt"], "built-in"),
+        (vec!["garment", "import", t, "--name", "a b"], "letters"),
+        (vec!["garment", "import", "/nonexistent.obj", "--name", "x"], "nonexistent"),
+        (vec!["warp", "--garment", "kilt", "-o", "/tmp/never.obj"], "my-dress"),
+    ] {
+        let o = drape(&[&["--assets", a][..], &args].concat());
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(stderr(&o).contains(expect), "{args:?}: {}", stderr(&o));
+    }
+    assert_eq!(std::fs::read_dir(&user).unwrap().count(), before);
+    assert!(!Path::new("/tmp/never.obj").exists());
+}
