@@ -25,3 +25,10 @@ mkdir -p docs/sim
 for seed in 9 11; do
   $drape sim --garment tube --pose "random:$seed" -o "$tmp/d.obj" --png "docs/sim/tube-random-$seed.png" --report "docs/sim/tube-random-$seed.json"
 done
+
+# Garments: each template on the canonical body, then its DQS warp and its drape on three
+# sampled bodies and poses (samples 0 to 2 of `drape garment check`).
+mkdir -p docs/garments
+for g in tshirt sweater dress jeans; do
+  $drape garment gallery "$g" --samples 3 --seed 0 --cell-height 200 -o "docs/garments/$g.png" | tee "docs/garments/$g.txt"
+done

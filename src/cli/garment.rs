@@ -51,6 +51,28 @@ enum GarmentCommand {
     },
     /// List the garments: built-in ones (and whether they are cached) and imported ones.
     List,
+    /// Render a garment: the canonical body, the template on it and alone; then one row per
+    /// sampled body and pose: the posed body, the DQS warp on it and the simulated drape;
+    /// front and side views. Prints each sample's body, pose and drape figures.
+    Gallery {
+        /// Garment name.
+        name: String,
+        /// About this many vertices for a built-in garment (default 10000).
+        #[arg(long, value_name = "N")]
+        resolution: Option<usize>,
+        /// Number of sampled bodies and poses.
+        #[arg(long, default_value_t = 3)]
+        samples: u64,
+        /// Seed of the first sample (as for `drape garment check`).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Height of each picture in pixels.
+        #[arg(long, default_value_t = 300)]
+        cell_height: u32,
+        /// Output PNG.
+        #[arg(short = 'o', long, value_name = "FILE.png")]
+        output: PathBuf,
+    },
     /// Measure a garment as ground truth: drape it on sampled bodies and poses (or on the
     /// corner bodies of the shape range in the rest pose) and print, per drape and overall,
     /// convergence, penetration depth, p95 edge strain and time; also the share of edges the
@@ -221,6 +243,14 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             config,
             report,
         } => check(ctx, &name, resolution, samples, seed, corners, config, report),
+        GarmentCommand::Gallery {
+            name,
+            resolution,
+            samples,
+            seed,
+            cell_height,
+            output,
+        } => gallery(ctx, &name, resolution, samples, seed, cell_height, &output),
         GarmentCommand::Import { obj, name } => {
             let (model, _) = load(ctx)?;
             let (t, path) = lib.import(&obj, &name, &model)?;
@@ -320,7 +350,7 @@ fn check(
     config: Option<PathBuf>,
     report: Option<PathBuf>,
 ) -> anyhow::Result<()> {
-    use dataset::sampling::{PosePrior, ShapeRanges, rng, shape_seed};
+    use dataset::sampling::{PosePrior, ShapeRanges};
     use rayon::prelude::*;
     use sim::cloth::drape::{self, BodyMorph};
     use sim::cloth::{ClothModel, SimConfig};
@@ -348,8 +378,8 @@ fn check(
         (0..samples)
             .map(|k| {
                 let s = seed.wrapping_add(k);
-                let shape = ranges.sample(&mut rng(shape_seed(s)));
-                (format!("random:{s}"), shape, prior.sample_seeded(s).pose)
+                let (shape, pose) = sample(&prior, s);
+                (format!("random:{s}"), shape, pose.pose)
             })
             .collect()
     };
@@ -452,5 +482,107 @@ fn check(
         let json = serde_json::to_string_pretty(&serde_json::json!({"summary": summary, "drapes": rows}))?;
         sim::io::write_all_or_nothing(&[(&p, json.as_bytes())])?;
     }
+    Ok(())
+}
+
+/// Sample `k` of the checks and galleries: the body of the default shape range and the pose
+/// random:SEED+k of the prior.
+fn sample(
+    prior: &dataset::sampling::PosePrior,
+    s: u64,
+) -> (ShapeParams, dataset::sampling::SampledPose) {
+    use dataset::sampling::{ShapeRanges, rng, shape_seed};
+    (
+        ShapeRanges::default().sample(&mut rng(shape_seed(s))),
+        prior.sample_seeded(s),
+    )
+}
+
+fn gallery(
+    ctx: &Context,
+    name: &str,
+    resolution: Option<usize>,
+    samples: u64,
+    seed: u64,
+    cell_height: u32,
+    output: &Path,
+) -> anyhow::Result<()> {
+    use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer, RenderOptions};
+    use sim::cloth::drape::{self, BodyMorph};
+    use sim::cloth::{ClothModel, SimConfig};
+
+    let (model, library) = load(ctx)?;
+    let t = template(ctx, name, resolution, &model)?;
+    let config = SimConfig::default();
+    let cloth = ClothModel::new(&t.mesh, &config, &[])?;
+    let canonical = model.shape(&ShapeParams::default())?;
+    let prior = dataset::sampling::PosePrior::new(library);
+    let opts = RenderOptions {
+        height: cell_height,
+        ..Default::default()
+    };
+    let picture = |body: &[glam::Vec3], x: &[glam::Vec3]| {
+        eval::render::render(
+            &[
+                Layer::new(body, &model.triangles, BODY_COLOUR),
+                Layer::new(x, &t.mesh.triangles, GARMENT_COLOUR),
+            ],
+            &opts,
+        )
+    };
+    let mut images = vec![
+        eval::render::render(
+            &[Layer::new(&canonical.vertices, &model.triangles, BODY_COLOUR)],
+            &opts,
+        )?,
+        picture(&canonical.vertices, &t.mesh.vertices)?,
+        eval::render::render(
+            &[Layer::new(&t.mesh.vertices, &t.mesh.triangles, GARMENT_COLOUR)],
+            &opts,
+        )?,
+    ];
+    println!(
+        "row 0: the canonical body, the template on it ({} vertices), the template alone",
+        t.len()
+    );
+    for k in 0..samples {
+        let s = seed.wrapping_add(k);
+        let (shape, pose) = sample(&prior, s);
+        let target = model.shape(&shape)?;
+        let posed = target.pose(&pose.pose);
+        let warp = t.warp(&canonical, &target, &posed);
+        let motion = BodyMorph::new(
+            &model,
+            ShapeParams::default(),
+            shape,
+            pose.pose.clone(),
+            config.morph_frames,
+        )?;
+        let d = drape::drape(&cloth, &t.mesh.vertices, &motion, &config, true, &mut |_| {});
+        let r = &d.report;
+        println!(
+            "row {}: random:{s}, body {:.2} m (gender {:.2}, weight {:.2}), pose {}; DQS warp, then the drape: {}, strain p95 {:.1}%, {:.1} s",
+            k + 1,
+            target.height(),
+            shape.gender,
+            shape.weight,
+            pose.describe(),
+            match &r.failure {
+                None => "converged".to_string(),
+                Some(f) => format!("FAILED ({f})"),
+            },
+            r.strain.p95 * 100.0,
+            r.wall_time
+        );
+        images.push(eval::render::render(
+            &[Layer::new(&posed.vertices, &model.triangles, BODY_COLOUR)],
+            &opts,
+        )?);
+        images.push(picture(&posed.vertices, &warp)?);
+        images.push(picture(&posed.vertices, &d.positions)?);
+    }
+    let grid = eval::render::grid(&images, 3, opts.background);
+    sim::io::write_all_or_nothing(&[(output, &eval::render::encode_png(&grid)?)])?;
+    println!("{}: {} x {} pixels -> {}", name, grid.width, grid.height, output.display());
     Ok(())
 }
