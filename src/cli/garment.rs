@@ -93,6 +93,9 @@ enum GarmentCommand {
         /// Instead of samples: the 2^6 corner bodies of the default shape range, rest pose.
         #[arg(long)]
         corners: bool,
+        /// Only the DQS warps, no drapes (fast: checks the skinning weights).
+        #[arg(long)]
+        warp_only: bool,
         /// Simulator configuration TOML (default: configs/sim/default.toml).
         #[arg(long, value_name = "FILE.toml")]
         config: Option<PathBuf>,
@@ -240,9 +243,12 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             samples,
             seed,
             corners,
+            warp_only,
             config,
             report,
-        } => check(ctx, &name, resolution, samples, seed, corners, config, report),
+        } => check(
+            ctx, &name, resolution, samples, seed, corners, warp_only, config, report,
+        ),
         GarmentCommand::Gallery {
             name,
             resolution,
@@ -317,8 +323,9 @@ pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Share of edges longer than `1 + limit` times their template length.
-fn overstretched(t: &Template, x: &[glam::Vec3], limit: f32) -> f32 {
+/// Share of edges longer than `1 + limit` times their template length, among the edges
+/// whose both ends pass `keep`.
+fn overstretched(t: &Template, x: &[glam::Vec3], limit: f32, keep: &dyn Fn(u32) -> bool) -> f32 {
     let mut edges: Vec<(u32, u32)> = t
         .mesh
         .triangles
@@ -328,6 +335,7 @@ fn overstretched(t: &Template, x: &[glam::Vec3], limit: f32) -> f32 {
         .collect();
     edges.sort_unstable();
     edges.dedup();
+    edges.retain(|&(a, b)| keep(a) && keep(b));
     let v = &t.mesh.vertices;
     let over = edges
         .iter()
@@ -347,6 +355,7 @@ fn check(
     samples: u64,
     seed: u64,
     corners: bool,
+    warp_only: bool,
     config: Option<PathBuf>,
     report: Option<PathBuf>,
 ) -> anyhow::Result<()> {
@@ -366,6 +375,15 @@ fn check(
     let prior = PosePrior::new(library);
     let ranges = ShapeRanges::default();
     let rest = sim::body::Pose::rest(model.skeleton.len());
+    // The second part of a two-part garment (the dress's skirt), measured on its own too.
+    let second = match sim::garment::built_in(name) {
+        Some(def) if def.join.is_some() => Some(sim::garment::build::part_of(
+            &def,
+            &canonical,
+            &t.mesh.vertices,
+        )?),
+        _ => None,
+    };
     // (label, shape, pose)
     let cases: Vec<(String, ShapeParams, sim::body::Pose)> = if corners {
         ranges
@@ -402,7 +420,18 @@ fn check(
             let target = model.shape(shape)?;
             let posed = target.pose(pose);
             let warp = t.warp(&canonical, &target, &posed);
-            let warp_over = overstretched(&t, &warp, 0.3);
+            let warp_over = overstretched(&t, &warp, 0.3, &|_| true);
+            if warp_only {
+                bar.inc(1);
+                return Ok(serde_json::json!({
+                    "case": label,
+                    "height_m": target.height(),
+                    "warp_edges_over_30pct": warp_over,
+                    "second_part_warp_edges_over_30pct": second.as_ref().map(|p| {
+                        overstretched(&t, &warp, 0.3, &|v| p[v as usize] == 1)
+                    }),
+                }));
+            }
             let motion = BodyMorph::new(
                 &model,
                 ShapeParams::default(),
@@ -430,6 +459,46 @@ fn check(
         .collect();
     bar.finish_and_clear();
     let rows: Vec<serde_json::Value> = rows.into_iter().collect::<Result<_, _>>()?;
+    if warp_only {
+        let w: Vec<f64> = rows
+            .iter()
+            .map(|r| r["warp_edges_over_30pct"].as_f64().unwrap_or(0.0))
+            .collect();
+        let n = w.len().max(1) as f64;
+        let summary = serde_json::json!({
+            "garment": name,
+            "vertices": t.len(),
+            "warps": rows.len(),
+            "warp_edges_over_30pct_mean": w.iter().sum::<f64>() / n,
+            "warp_edges_over_30pct_max": w.iter().copied().fold(0.0, f64::max),
+            "warps_over_1pct": w.iter().filter(|&&x| x > 0.01).count(),
+            "second_part_warp_edges_over_30pct_max": rows
+                .iter()
+                .filter_map(|r| r["second_part_warp_edges_over_30pct"].as_f64())
+                .reduce(f64::max),
+        });
+        println!(
+            "DQS warp on {} bodies and poses: {:.3}% of edges stretched by more than 30% on average, {:.3}% at most; {} warps above 1%",
+            rows.len(),
+            summary["warp_edges_over_30pct_mean"].as_f64().unwrap_or(0.0) * 100.0,
+            summary["warp_edges_over_30pct_max"].as_f64().unwrap_or(0.0) * 100.0,
+            summary["warps_over_1pct"]
+        );
+        if let Some(m) = summary["second_part_warp_edges_over_30pct_max"].as_f64() {
+            println!(
+                "second part ({}) alone: at most {:.3}% of its edges stretched by more than 30%",
+                sim::garment::built_in(name)
+                    .map(|d| d.parts[1].source.clone())
+                    .unwrap_or_default(),
+                m * 100.0
+            );
+        }
+        if let Some(p) = report {
+            let json = serde_json::to_string_pretty(&serde_json::json!({"summary": summary, "warps": rows}))?;
+            sim::io::write_all_or_nothing(&[(&p, json.as_bytes())])?;
+        }
+        return Ok(());
+    }
     println!("case          height  converged  frames  time    strain p95  max      deepest  warp >30%");
     for r in &rows {
         println!(

@@ -86,19 +86,7 @@ pub fn transfer_weights(
         }
     }
 
-    // Neighbour lists in a fixed order.
-    let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); n];
-    for t in &garment.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            neighbours[a as usize].push(b);
-            neighbours[b as usize].push(a);
-        }
-    }
-    for l in &mut neighbours {
-        l.sort_unstable();
-        l.dedup();
-    }
+    let neighbours = neighbours(garment);
     for _ in 0..SMOOTHING_ROUNDS {
         let mut next = dense.clone();
         for v in 0..n {
@@ -132,4 +120,40 @@ pub fn transfer_weights(
         skin.weights.push(w);
     }
     skin
+}
+
+/// Mesh neighbours of every vertex, sorted.
+pub fn neighbours(mesh: &TriMesh) -> Vec<Vec<u32>> {
+    let mut nb: Vec<Vec<u32>> = vec![Vec::new(); mesh.vertices.len()];
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            nb[a as usize].push(b);
+            nb[b as usize].push(a);
+        }
+    }
+    for l in &mut nb {
+        l.sort_unstable();
+        l.dedup();
+    }
+    nb
+}
+
+/// `rounds` rounds of neighbour averaging of a per-vertex vector field: each round a vertex
+/// keeps half its value and takes half its neighbours' mean.
+pub fn smooth(mesh: &TriMesh, mut field: Vec<Vec3>, rounds: usize) -> Vec<Vec3> {
+    let nb = neighbours(mesh);
+    for _ in 0..rounds {
+        field = (0..field.len())
+            .map(|v| {
+                let n = &nb[v];
+                if n.is_empty() {
+                    return field[v];
+                }
+                let mean = n.iter().map(|&u| field[u as usize]).sum::<Vec3>() / n.len() as f32;
+                0.5 * field[v] + 0.5 * mean
+            })
+            .collect();
+    }
+    field
 }

@@ -19,6 +19,9 @@ use crate::body::skinning::{self, SkinWeights};
 use crate::body::{PosedBody, ShapedBody};
 use crate::mesh::TriMesh;
 
+/// Rounds of neighbour averaging of the shape moves in [`Template::reshape`].
+pub const RESHAPE_SMOOTHING_ROUNDS: usize = 64;
+
 /// Format tag of the template files.
 pub const FORMAT: &str = "drape-garment-template/1";
 
@@ -221,23 +224,30 @@ impl Template {
     }
 
     /// The template carried to a new body shape: each vertex moves as its bound point of the
-    /// body does between the canonical and the `shaped` body (rest pose).
+    /// body does between the canonical and the `shaped` body (rest pose), the moves smoothed
+    /// over the garment ([`RESHAPE_SMOOTHING_ROUNDS`] rounds of neighbour averaging), so that
+    /// neighbours bound to different limbs (a skirt's front between the legs) move together.
     pub fn reshape(&self, canonical: &ShapedBody<'_>, shaped: &ShapedBody<'_>) -> Vec<Vec3> {
         let tris = &canonical.model.triangles;
-        self.mesh
-            .vertices
+        let moves: Vec<Vec3> = self
+            .bindings
             .iter()
-            .zip(&self.bindings)
-            .map(|(&p, b)| {
+            .map(|b| {
                 let t = tris[b.triangle as usize];
-                let moved: Vec3 = (0..3)
+                (0..3)
                     .map(|k| {
                         let i = t[k] as usize;
                         (shaped.vertices[i] - canonical.vertices[i]) * b.bary[k]
                     })
-                    .sum();
-                p + moved
+                    .sum()
             })
+            .collect();
+        let moves = super::skin::smooth(&self.mesh, moves, RESHAPE_SMOOTHING_ROUNDS);
+        self.mesh
+            .vertices
+            .iter()
+            .zip(moves)
+            .map(|(&p, m)| p + m)
             .collect()
     }
 

@@ -577,6 +577,75 @@ impl Hem {
         Ok(m)
     }
 
+    /// Consistency of the structure (tests only).
+    #[cfg(test)]
+    fn check(&self) -> Result<(), String> {
+        for h in 0..self.to.len() as u32 {
+            let hu = h as usize;
+            if self.to[hu] == NONE {
+                continue;
+            }
+            let (n, p) = (self.next[hu], self.prev[hu]);
+            if self.to[n as usize] == NONE || self.to[p as usize] == NONE {
+                return Err(format!("{h}: links to a dead half-edge"));
+            }
+            if self.prev[n as usize] != h || self.next[p as usize] != h {
+                return Err(format!("{h}: next/prev mismatch"));
+            }
+            if self.from(n) != self.to[hu] {
+                return Err(format!("{h}: next does not start at my end"));
+            }
+            if self.face[n as usize] != self.face[hu] {
+                return Err(format!("{h}: next in another face"));
+            }
+            let f = self.face[hu];
+            if f != NONE {
+                if self.fhe[f as usize] == NONE {
+                    return Err(format!("{h}: in dead face {f}"));
+                }
+                if self.next[self.next[n as usize] as usize] != h {
+                    return Err(format!("{h}: face {f} is not a triangle"));
+                }
+            }
+            if self.vhe[self.to[hu] as usize] == NONE {
+                return Err(format!("{h}: points to a dead vertex"));
+            }
+        }
+        for f in 0..self.fhe.len() {
+            let h = self.fhe[f];
+            if h != NONE && (self.to[h as usize] == NONE || self.face[h as usize] != f as u32) {
+                return Err(format!("face {f}: bad fhe"));
+            }
+        }
+        for v in 0..self.pos.len() as u32 {
+            let start = self.vhe[v as usize];
+            if start == NONE {
+                continue;
+            }
+            if self.to[start as usize] == NONE || self.from(start) != v {
+                return Err(format!("vertex {v}: bad vhe"));
+            }
+            let mut h = start;
+            let mut steps = 0;
+            let mut bnd = 0;
+            loop {
+                bnd += usize::from(self.face[h as usize] == NONE);
+                h = self.next[(h ^ 1) as usize];
+                steps += 1;
+                if h == start || steps > 1000 {
+                    break;
+                }
+            }
+            if steps > 1000 {
+                return Err(format!("vertex {v}: circulation does not close"));
+            }
+            if bnd > 1 || (bnd == 1 && self.face[start as usize] != NONE) {
+                return Err(format!("vertex {v}: boundary half-edge not first ({bnd})"));
+            }
+        }
+        Ok(())
+    }
+
     /// The live part as a triangle mesh, vertices and faces renumbered in index order.
     fn to_trimesh(&self) -> TriMesh {
         let (map, vertices) = self.live_vertices();
@@ -1020,6 +1089,7 @@ impl Remesher {
                 let h = 2 * e as usize;
                 let mid = 0.5 * (self.m.p(self.m.to[h]) + self.m.p(self.m.to[h + 1]));
                 self.m.split(e, mid);
+                #[cfg(test)] if let Err(e) = self.m.check() { panic!("after split: {e}") } // TMPCHECK
                 // The half a -> m keeps index e: check it again.
                 continue;
             }
@@ -1051,6 +1121,7 @@ impl Remesher {
             if let Some(p) = self.collapse_target(h, max_len) {
                 let mut ring = std::mem::take(&mut self.ring_a);
                 self.m.collapse(h, p, &mut ring);
+                #[cfg(test)] if let Err(e) = self.m.check() { panic!("after collapse: {e}") } // TMPCHECK
                 self.ring_a = ring;
                 return true;
             }
@@ -1259,6 +1330,7 @@ impl Remesher {
                 continue;
             }
             self.m.flip(e);
+            #[cfg(test)] if let Err(e) = self.m.check() { panic!("after flipV: {e}") } // TMPCHECK
             for k in 0..4 {
                 valence[quad[k]] += change[k];
             }
@@ -1284,6 +1356,7 @@ impl Remesher {
                     continue;
                 }
                 self.m.flip(e);
+                #[cfg(test)] if let Err(e) = self.m.check() { panic!("after flipD: {e}") } // TMPCHECK
                 changed = true;
             }
             if !changed {
