@@ -171,34 +171,23 @@ fn parse_base_obj(
                 vertices.push(Vec3::new(c[0], c[1], c[2]) * DM);
             }
             Some("g") => group = it.next().unwrap_or("").to_string(),
-            Some("f") if group == "body" => {
+            Some("f") if group == "body" || HELPER_GROUPS.contains(&group.as_str()) => {
                 // OBJ indices count from 1; 0 and negative (relative) indices are not used
                 // by base.obj and are refused.
                 let idx: Vec<u32> = it
                     .filter_map(|s| s.split('/').next()?.parse::<u32>().ok()?.checked_sub(1))
                     .collect();
-                if idx.len() != 4 {
-                    return Err(import_err(
-                        path,
-                        format!("line {}: body face is not a quad", lineno + 1),
-                    ));
-                }
-                quads.push([idx[0], idx[1], idx[2], idx[3]]);
-            }
-            Some("f") if HELPER_GROUPS.contains(&group.as_str()) => {
-                let idx: Vec<u32> = it
-                    .filter_map(|s| s.split('/').next()?.parse::<u32>().ok()?.checked_sub(1))
-                    .collect();
-                if idx.len() != 4 {
+                let &[a, b, c, d] = idx.as_slice() else {
                     return Err(import_err(
                         path,
                         format!("line {}: {group} face is not a quad", lineno + 1),
                     ));
+                };
+                if group == "body" {
+                    quads.push([a, b, c, d]);
+                } else {
+                    helpers.entry(group.clone()).or_default().push([a, b, c, d]);
                 }
-                helpers
-                    .entry(group.clone())
-                    .or_default()
-                    .push([idx[0], idx[1], idx[2], idx[3]]);
             }
             _ => {}
         }

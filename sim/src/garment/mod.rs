@@ -303,13 +303,7 @@ impl Library {
             built(&format!("building {name} at {vertices} vertices (cached in {})", path.display()));
             let canonical = model.shape(&Default::default())?;
             let t = self.build(name, vertices, &canonical)?;
-            if let Some(dir) = path.parent() {
-                std::fs::create_dir_all(dir).map_err(|source| GarmentError::Io {
-                    path: dir.to_path_buf(),
-                    source,
-                })?;
-            }
-            crate::io::write_all_or_nothing(&[(&path, &t.encode())])?;
+            store(&t, &path)?;
             return Ok(t);
         }
         let path = self.user_path(name);
@@ -346,15 +340,21 @@ impl Library {
         let canonical = model.shape(&Default::default())?;
         let t = import_mesh(mesh, name, obj, &canonical)?;
         let path = self.user_path(name);
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).map_err(|source| GarmentError::Io {
-                path: dir.to_path_buf(),
-                source,
-            })?;
-        }
-        crate::io::write_all_or_nothing(&[(&path, &t.encode())])?;
+        store(&t, &path)?;
         Ok((t, path))
     }
+}
+
+/// Writes a template file, creating its folder.
+fn store(t: &Template, path: &Path) -> Result<(), GarmentError> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| GarmentError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    crate::io::write_all_or_nothing(&[(path, &t.encode())])?;
+    Ok(())
 }
 
 /// Checks a user's garment mesh on the canonical body and skins it: manifold edges, no
