@@ -19,8 +19,10 @@ use crate::body::skinning::{self, SkinWeights};
 use crate::body::{PosedBody, ShapedBody};
 use crate::mesh::TriMesh;
 
-/// Rounds of neighbour averaging of the shape moves in [`Template::reshape`].
-pub const RESHAPE_SMOOTHING_ROUNDS: usize = 64;
+/// Reach of the smoothing of the shape moves in [`Template::reshape`] (m): neighbour
+/// averaging spreads a value over about `edge * sqrt(rounds)`, so the rounds are
+/// `(RESHAPE_SMOOTHING_REACH / mean edge)^2` (about 60 at 3k vertices, 220 at 10k).
+pub const RESHAPE_SMOOTHING_REACH: f32 = 0.15;
 
 /// Format tag of the template files.
 pub const FORMAT: &str = "drape-garment-template/1";
@@ -225,7 +227,7 @@ impl Template {
 
     /// The template carried to a new body shape: each vertex moves as its bound point of the
     /// body does between the canonical and the `shaped` body (rest pose), the moves smoothed
-    /// over the garment ([`RESHAPE_SMOOTHING_ROUNDS`] rounds of neighbour averaging), so that
+    /// over the garment (neighbour averaging reaching about [`RESHAPE_SMOOTHING_REACH`]), so that
     /// neighbours bound to different limbs (a skirt's front between the legs) move together.
     pub fn reshape(&self, canonical: &ShapedBody<'_>, shaped: &ShapedBody<'_>) -> Vec<Vec3> {
         let tris = &canonical.model.triangles;
@@ -242,7 +244,17 @@ impl Template {
                     .sum()
             })
             .collect();
-        let moves = super::skin::smooth(&self.mesh, moves, RESHAPE_SMOOTHING_ROUNDS);
+        let (mut total, mut count) = (0.0f32, 0usize);
+        for t in &self.mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
+                total += self.mesh.vertices[a].distance(self.mesh.vertices[b]);
+                count += 1;
+            }
+        }
+        let edge = (total / count.max(1) as f32).max(1e-4);
+        let rounds = ((RESHAPE_SMOOTHING_REACH / edge).powi(2).ceil() as usize).min(2_000);
+        let moves = super::skin::smooth(&self.mesh, moves, rounds);
         self.mesh
             .vertices
             .iter()
