@@ -30,6 +30,10 @@ use crate::mesh::{TriMesh, remesh};
 /// the feet; at 40 they hang from the hips with p95 strain 2%.
 pub const RELAX_SUBSTEPS: u32 = 40;
 
+/// Settling frames of the relaxation, at most: a garment that creeps slowly on the body
+/// (the sweater's sleeves) may need more than a drape's 600.
+pub const RELAX_MAX_FRAMES: u32 = 1_500;
+
 /// A helper mesh as read from the helpers OBJ: positions and quads.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Helper {
@@ -282,6 +286,7 @@ pub fn build(
     };
     let relax_config = SimConfig {
         substeps: config.substeps.max(RELAX_SUBSTEPS),
+        max_frames: config.max_frames.max(RELAX_MAX_FRAMES),
         ..config.clone()
     };
     let model = ClothModel::new(&mesh, &relax_config, &[])?;

@@ -204,9 +204,11 @@ impl Default for RemeshOptions {
 /// Isotropic remeshing after Botsch and Kobbelt (2004), with L the target edge length, in
 /// `opts.iterations` rounds of:
 ///
-/// 1. split every edge longer than 4/3 L at its midpoint;
+/// 1. split every edge longer than 4/3 L at its midpoint, longest first;
 /// 2. collapse every edge shorter than 4/5 L unless that makes an edge longer than 4/3 L,
-///    turns or degenerates a triangle or breaks manifoldness (link condition);
+///    turns or degenerates a triangle, breaks manifoldness (link condition) or leaves a new
+///    edge's midpoint more than L / 10 off the input surface (where L is too coarse for the
+///    curvature, as in a tube of radius below about 2 L, edges stay shorter instead);
 /// 3. flip edges whose flip brings the valences of their four vertices closer to 6
 ///    (4 on the boundary, fewer at sharp boundary corners);
 /// 4. move each vertex to the area-weighted centroid of its triangles, within its tangent
@@ -214,12 +216,14 @@ impl Default for RemeshOptions {
 /// 5. project the vertices back onto the input surface (boundary vertices onto the input's
 ///    boundary polyline).
 ///
-/// Then a clean-up: Delaunay flips and collapses of the shortest edge of needles, for the
-/// few slivers the rounds leave.
+/// Then a clean-up (the only step when `opts.iterations` is 0): Delaunay flips and
+/// collapses of the shortest edge of needles, for the few slivers the rounds leave.
 ///
 /// Boundary vertices stay on the input's boundary loops and are only collapsed along them,
 /// never into interior vertices; corners where the input's boundary turns by more than
-/// 45 degrees are pinned. Vertices are numbered anew; the output has no unused vertices.
+/// 45 degrees are pinned. Sharp creases inside the surface are not kept (they get rounded
+/// over about one edge length), which suits smooth garment surfaces. Vertices are numbered
+/// anew; the output has no unused vertices. Deterministic: equal inputs give equal outputs.
 ///
 /// # Errors
 ///
@@ -235,7 +239,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions) -> Result<TriMesh, MeshError
     };
     let l = opts.target_edge;
     if !(l.is_finite() && l > 0.0) {
-        return Err(err(format!("target edge length {l} is not a positive length")));
+        return Err(err(format!(
+            "target edge length {l} is not a positive length"
+        )));
     }
     validate(mesh).map_err(err)?;
     let expected = 2.0 * area(mesh) / (3f32.sqrt() * l * l);
@@ -340,7 +346,9 @@ fn angle_at(p: Vec3, x: Vec3, y: Vec3) -> f32 {
 
 /// Smallest angle of a triangle (radians).
 fn min_angle([a, b, c]: [Vec3; 3]) -> f32 {
-    angle_at(a, b, c).min(angle_at(b, c, a)).min(angle_at(c, a, b))
+    angle_at(a, b, c)
+        .min(angle_at(b, c, a))
+        .min(angle_at(c, a, b))
 }
 
 /// Checks what [`remesh`] needs of its input apart from manifoldness (which building the
@@ -655,7 +663,10 @@ impl Hem {
             .live_faces()
             .map(|f| self.tri(f).map(|v| map[v as usize]))
             .collect();
-        TriMesh::new(vertices.iter().map(|&v| self.pos[v as usize]).collect(), triangles)
+        TriMesh::new(
+            vertices.iter().map(|&v| self.pos[v as usize]).collect(),
+            triangles,
+        )
     }
 
     /// The same mesh without deleted elements (vertices and faces keep their order, edges
@@ -708,7 +719,11 @@ impl Hem {
     /// The three vertices of face `f`, counter-clockwise.
     fn tri(&self, f: u32) -> [u32; 3] {
         let h = self.fhe[f as usize];
-        [self.from(h), self.to[h as usize], self.to[self.next[h as usize] as usize]]
+        [
+            self.from(h),
+            self.to[h as usize],
+            self.to[self.next[h as usize] as usize],
+        ]
     }
 
     fn p(&self, v: u32) -> Vec3 {
@@ -804,8 +819,11 @@ impl Hem {
         let m = self.pos.len() as u32;
         self.pos.push(p);
         let on_boundary = f0 == NONE || f1 == NONE;
-        self.lp
-            .push(if on_boundary { self.lp[a as usize] } else { NONE });
+        self.lp.push(if on_boundary {
+            self.lp[a as usize]
+        } else {
+            NONE
+        });
         self.corner.push(false);
         self.vhe.push(NONE);
         let h2 = self.new_edge(m, b);
@@ -880,7 +898,11 @@ impl Hem {
             let (n0, p0) = (self.next[h0 as usize], self.prev[h0 as usize]);
             let c = self.to[n0 as usize];
             let o = p0 ^ 1;
-            let (op, on, of) = (self.prev[o as usize], self.next[o as usize], self.face[o as usize]);
+            let (op, on, of) = (
+                self.prev[o as usize],
+                self.next[o as usize],
+                self.face[o as usize],
+            );
             self.face[n0 as usize] = of;
             self.link(op, n0);
             self.link(n0, on);
@@ -903,7 +925,11 @@ impl Hem {
             let (n1, p1) = (self.next[h1 as usize], self.prev[h1 as usize]);
             let d = self.to[n1 as usize];
             let o = n1 ^ 1;
-            let (op, on, of) = (self.prev[o as usize], self.next[o as usize], self.face[o as usize]);
+            let (op, on, of) = (
+                self.prev[o as usize],
+                self.next[o as usize],
+                self.face[o as usize],
+            );
             self.face[p1 as usize] = of;
             self.link(op, p1);
             self.link(p1, on);
@@ -1196,7 +1222,10 @@ impl Remesher {
             self.reference.on_surface(mid)
         };
         let stamp = self.next_stamp();
-        let (mut ring_a, mut ring_b) = (std::mem::take(&mut self.ring_a), std::mem::take(&mut self.ring_b));
+        let (mut ring_a, mut ring_b) = (
+            std::mem::take(&mut self.ring_a),
+            std::mem::take(&mut self.ring_b),
+        );
         let m = &self.m;
         m.outgoing(a, &mut ring_a);
         m.outgoing(b, &mut ring_b);
@@ -1459,7 +1488,10 @@ impl Remesher {
                 m.outgoing(v, &mut ring);
                 let (mut weighted, mut total) = (Vec3::ZERO, 0.0);
                 for &o in &ring {
-                    let (x, y) = (m.p(m.to[o as usize]), m.p(m.to[m.next[o as usize] as usize]));
+                    let (x, y) = (
+                        m.p(m.to[o as usize]),
+                        m.p(m.to[m.next[o as usize] as usize]),
+                    );
                     let a = tri_area([p, x, y]);
                     weighted += a * (p + x + y) / 3.0;
                     total += a;
@@ -1515,7 +1547,12 @@ mod tests {
     /// Checks that `mesh` is an oriented manifold by building the half-edge structure.
     fn assert_manifold(mesh: &TriMesh) {
         let n = mesh.vertices.len();
-        if let Err(e) = Hem::build(mesh.vertices.clone(), &mesh.triangles, vec![NONE; n], vec![false; n]) {
+        if let Err(e) = Hem::build(
+            mesh.vertices.clone(),
+            &mesh.triangles,
+            vec![NONE; n],
+            vec![false; n],
+        ) {
             panic!("not manifold: {e}");
         }
     }
@@ -1543,8 +1580,14 @@ mod tests {
             Vec3::new(0.5, 0.0, 0.0),
             Vec3::new(1.0, 1.0, 0.0),
         ];
-        assert_eq!(triangulate_quads(&v, &[[0, 1, 2, 3]]), vec![[0, 1, 2], [0, 2, 3]]);
-        assert_eq!(triangulate_quads(&v, &[[1, 2, 3, 0]]), vec![[1, 2, 0], [2, 3, 0]]);
+        assert_eq!(
+            triangulate_quads(&v, &[[0, 1, 2, 3]]),
+            vec![[0, 1, 2], [0, 2, 3]]
+        );
+        assert_eq!(
+            triangulate_quads(&v, &[[1, 2, 3, 0]]),
+            vec![[1, 2, 0], [2, 3, 0]]
+        );
         // A triangle stored as a quad.
         assert_eq!(triangulate_quads(&v, &[[0, 1, 2, 2]]), vec![[0, 1, 2]]);
     }
@@ -1604,7 +1647,9 @@ mod tests {
                 .map(|p| p.length())
                 .collect();
             let mean = r.iter().sum::<f32>() / r.len() as f32;
-            let (lo, hi) = r.iter().fold((f32::MAX, 0.0f32), |(l, h), &x| (l.min(x), h.max(x)));
+            let (lo, hi) = r
+                .iter()
+                .fold((f32::MAX, 0.0f32), |(l, h), &x| (l.min(x), h.max(x)));
             ((hi - lo) / mean, mean)
         };
         let (lin_n, loop_n) = (normal_error(&linear), normal_error(&d));
@@ -1664,11 +1709,21 @@ mod tests {
         let input = square();
         assert!(angle_stats(&input).min_deg < 5.0);
         let l = 0.02;
-        let out = remesh(&input, &RemeshOptions { target_edge: l, iterations: 10 }).unwrap();
+        let out = remesh(
+            &input,
+            &RemeshOptions {
+                target_edge: l,
+                iterations: 10,
+            },
+        )
+        .unwrap();
         assert_manifold(&out);
         let stats = angle_stats(&out);
         let mean = mean_edge(&out);
-        println!("grid -> {} vertices, mean edge {mean}, {stats:?}", out.vertices.len());
+        println!(
+            "grid -> {} vertices, mean edge {mean}, {stats:?}",
+            out.vertices.len()
+        );
         assert!((mean - l).abs() < 0.15 * l);
         assert!(stats.share_below_20 <= 0.01);
         assert_eq!(stats.degenerate, 0);
@@ -1676,7 +1731,11 @@ mod tests {
         assert_eq!(loops.len(), 1);
         for &v in &loops[0] {
             let p = out.vertices[v as usize];
-            let to_border = p.x.abs().min((1.0 - p.x).abs()).min(p.z.abs()).min((1.0 + p.z).abs());
+            let to_border =
+                p.x.abs()
+                    .min((1.0 - p.x).abs())
+                    .min(p.z.abs())
+                    .min((1.0 + p.z).abs());
             assert!(to_border < 1e-4 && p.y.abs() < 1e-6, "{p}");
         }
         assert!((area(&out) - 1.0).abs() < 0.01);
@@ -1692,10 +1751,7 @@ mod tests {
         let lo2 = r.lo * r.lo;
         let mut collapses = 0;
         for e in 0..r.m.n_edges() {
-            if r.m.edge_alive(e)
-                && r.m.edge_length_squared(e) < lo2
-                && r.try_collapse(e, r.hi)
-            {
+            if r.m.edge_alive(e) && r.m.edge_length_squared(e) < lo2 && r.try_collapse(e, r.hi) {
                 r.m.check().unwrap();
                 collapses += 1;
             }
@@ -1736,7 +1792,14 @@ mod tests {
         let (radius, height) = (0.15, 0.4);
         let input = quad_tube(radius, height, 24, 8);
         let l = 0.01;
-        let out = remesh(&input, &RemeshOptions { target_edge: l, iterations: 10 }).unwrap();
+        let out = remesh(
+            &input,
+            &RemeshOptions {
+                target_edge: l,
+                iterations: 10,
+            },
+        )
+        .unwrap();
         assert_manifold(&out);
         let stats = angle_stats(&out);
         let predicted = 2.0 * area(&input) / (3f32.sqrt() * l * l);
@@ -1765,7 +1828,10 @@ mod tests {
         for lp in &loops {
             let y0 = out.vertices[lp[0] as usize].y;
             assert!(y0.abs() < 1e-6 || (y0 - height).abs() < 1e-6);
-            assert!(lp.iter().all(|&v| (out.vertices[v as usize].y - y0).abs() < 1e-6));
+            assert!(
+                lp.iter()
+                    .all(|&v| (out.vertices[v as usize].y - y0).abs() < 1e-6)
+            );
             assert!(lp.len() as f32 > 0.8 * std::f32::consts::TAU * radius / (4.0 / 3.0 * l));
         }
         assert!((area(&out) / area(&input) - 1.0).abs() < 0.01);
@@ -1773,7 +1839,10 @@ mod tests {
 
     #[test]
     fn remeshing_is_deterministic() {
-        let opts = RemeshOptions { target_edge: 0.03, iterations: 10 };
+        let opts = RemeshOptions {
+            target_edge: 0.03,
+            iterations: 10,
+        };
         let a = remesh(&square(), &opts).unwrap();
         let b = remesh(&square(), &opts).unwrap();
         assert_eq!(a, b);
@@ -1790,7 +1859,9 @@ mod tests {
             Vec3::new(0.5, 1.0, 0.0),
         ];
         let reason = |tris: Vec<[u32; 3]>| {
-            remesh(&TriMesh::new(v.clone(), tris), &opts).unwrap_err().reason
+            remesh(&TriMesh::new(v.clone(), tris), &opts)
+                .unwrap_err()
+                .reason
         };
         // Three triangles on one edge.
         assert!(reason(vec![[0, 1, 2], [1, 0, 3], [0, 1, 4]]).contains("non-manifold"));
@@ -1808,9 +1879,15 @@ mod tests {
         assert!(err.reason.contains("degenerate"), "{err}");
         assert!(reason(vec![[0, 1, 7]]).contains("past"));
         assert!(reason(vec![]).contains("no faces"));
-        let bad = RemeshOptions { target_edge: 0.0, iterations: 10 };
+        let bad = RemeshOptions {
+            target_edge: 0.0,
+            iterations: 10,
+        };
         assert!(remesh(&square(), &bad).is_err());
-        let tiny = RemeshOptions { target_edge: 1e-5, iterations: 10 };
+        let tiny = RemeshOptions {
+            target_edge: 1e-5,
+            iterations: 10,
+        };
         assert!(remesh(&square(), &tiny).is_err());
     }
 
@@ -1819,11 +1896,20 @@ mod tests {
     #[test]
     #[cfg_attr(debug_assertions, ignore = "timing: run in release")]
     fn remeshing_timing() {
-        let opts = RemeshOptions { target_edge: 0.01, iterations: 10 };
+        let opts = RemeshOptions {
+            target_edge: 0.01,
+            iterations: 10,
+        };
         let jobs = [
-            ("tube r 0.15 m x 0.4 m, 24 x 8 quads", quad_tube(0.15, 0.4, 24, 8)),
+            (
+                "tube r 0.15 m x 0.4 m, 24 x 8 quads",
+                quad_tube(0.15, 0.4, 24, 8),
+            ),
             // A 1 m^2 body-suit patch: 2 cm quads.
-            ("1 m^2 grid, 50 x 50 quads", grid(Vec3::ZERO, Vec3::X, -Vec3::Z, 50, 50)),
+            (
+                "1 m^2 grid, 50 x 50 quads",
+                grid(Vec3::ZERO, Vec3::X, -Vec3::Z, 50, 50),
+            ),
         ];
         for (name, input) in jobs {
             let t = std::time::Instant::now();
@@ -1860,14 +1946,24 @@ mod tests {
             .collect();
         assert!(corners.len() > 40);
         for l in [0.01, 0.03] {
-            let out = remesh(&input, &RemeshOptions { target_edge: l, iterations: 10 }).unwrap();
+            let out = remesh(
+                &input,
+                &RemeshOptions {
+                    target_edge: l,
+                    iterations: 10,
+                },
+            )
+            .unwrap();
             assert_manifold(&out);
             let stats = angle_stats(&out);
             println!("stairs, L {l}: {} vertices, {stats:?}", out.vertices.len());
             assert!(stats.share_below_20 <= 0.01);
             assert_eq!(boundary_loops(&out).len(), 1);
             for c in &corners {
-                assert!(out.vertices.iter().any(|p| p.distance(*c) < 1e-6), "lost corner {c}");
+                assert!(
+                    out.vertices.iter().any(|p| p.distance(*c) < 1e-6),
+                    "lost corner {c}"
+                );
             }
             assert!((area(&out) / area(&input) - 1.0).abs() < 1e-3);
         }
