@@ -425,7 +425,15 @@ fn garments_build_once_warp_and_drape_by_name() {
     let out = tempfile::tempdir().unwrap();
     let p = |f: &str| out.path().join(f).to_str().unwrap().to_string();
     let (t_obj, t_png) = (p("t.obj"), p("t.png"));
-    let build = ["--assets", a, "garment", "build", "tshirt", "--resolution", "1000"];
+    let build = [
+        "--assets",
+        a,
+        "garment",
+        "build",
+        "tshirt",
+        "--resolution",
+        "1000",
+    ];
     let o = drape(&[&build[..], &["-o", &t_obj, "--png", &t_png]].concat());
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("building tshirt"));
@@ -434,25 +442,56 @@ fn garments_build_once_warp_and_drape_by_name() {
     assert!(blue_share(Path::new(&t_png)) > 0.03);
     // The second time it comes from the cache.
     let o = drape(&build);
-    assert!(o.status.success() && !stderr(&o).contains("building"), "{}", stderr(&o));
+    assert!(
+        o.status.success() && !stderr(&o).contains("building"),
+        "{}",
+        stderr(&o)
+    );
     let o = drape(&["--assets", a, "garment", "list"]);
     assert!(String::from_utf8_lossy(&o.stdout).contains("cached: 1000"));
 
     // The DQS warp onto a tall body in a sampled pose keeps the template's faces.
     let w_obj = p("w.obj");
     let warp = [
-        "--assets", a, "warp", "--garment", "tshirt", "--resolution", "1000", "--height", "0.6",
-        "--pose", "random:3", "-o", &w_obj, "--png", &p("w.png"),
+        "--assets",
+        a,
+        "warp",
+        "--garment",
+        "tshirt",
+        "--resolution",
+        "1000",
+        "--height",
+        "0.6",
+        "--pose",
+        "random:3",
+        "-o",
+        &w_obj,
+        "--png",
+        &p("w.png"),
     ];
     let o = drape(&warp);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(count(Path::new(&w_obj), "v "), n);
-    assert_eq!(count(Path::new(&w_obj), "f "), count(Path::new(&t_obj), "f "));
+    assert_eq!(
+        count(Path::new(&w_obj), "f "),
+        count(Path::new(&t_obj), "f ")
+    );
 
     // And the simulator drapes it by name.
     let sim = [
-        "--assets", a, "sim", "--garment", "tshirt", "--resolution", "1000", "--pose", "random:3",
-        "-o", &p("d.obj"), "--report", &p("d.json"),
+        "--assets",
+        a,
+        "sim",
+        "--garment",
+        "tshirt",
+        "--resolution",
+        "1000",
+        "--pose",
+        "random:3",
+        "-o",
+        &p("d.obj"),
+        "--report",
+        &p("d.json"),
     ];
     let o = drape(&sim);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -468,14 +507,36 @@ fn user_garments_are_imported_checked_and_usable() {
     let out = tempfile::tempdir().unwrap();
     let t_obj = out.path().join("t.obj");
     let t = t_obj.to_str().unwrap();
-    let o = drape(&["--assets", a, "garment", "build", "dress", "--resolution", "800", "-o", t]);
+    let o = drape(&[
+        "--assets",
+        a,
+        "garment",
+        "build",
+        "dress",
+        "--resolution",
+        "800",
+        "-o",
+        t,
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let o = drape(&["--assets", a, "garment", "import", t, "--name", "my-dress"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(assets.path().join("garments/user/my-dress.safetensors").exists());
+    assert!(
+        assets
+            .path()
+            .join("garments/user/my-dress.safetensors")
+            .exists()
+    );
     let w = out.path().join("w.obj");
     let o = drape(&[
-        "--assets", a, "warp", "--garment", "my-dress", "--pose", "random:1", "-o",
+        "--assets",
+        a,
+        "warp",
+        "--garment",
+        "my-dress",
+        "--pose",
+        "random:1",
+        "-o",
         w.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -489,7 +550,10 @@ fn user_garments_are_imported_checked_and_usable() {
         .lines()
         .map(|l| match l.strip_prefix("v ") {
             Some(rest) => {
-                let c: Vec<f32> = rest.split_whitespace().map(|s| s.parse().unwrap()).collect();
+                let c: Vec<f32> = rest
+                    .split_whitespace()
+                    .map(|s| s.parse().unwrap())
+                    .collect();
                 format!("v {} {} {}\n", c[0] * 100.0, c[1] * 100.0, c[2] * 100.0)
             }
             None => format!("{l}\n"),
@@ -497,11 +561,20 @@ fn user_garments_are_imported_checked_and_usable() {
         .collect();
     std::fs::write(&cm, scaled).unwrap();
     for (args, expect) in [
-        (vec!["garment", "import", cm.to_str().unwrap(), "--name", "big"], "metres"),
+        (
+            vec!["garment", "import", cm.to_str().unwrap(), "--name", "big"],
+            "metres",
+        ),
         (vec!["garment", "import", t, "--name", "tshirt"], "built-in"),
         (vec!["garment", "import", t, "--name", "a b"], "letters"),
-        (vec!["garment", "import", "/nonexistent.obj", "--name", "x"], "nonexistent"),
-        (vec!["warp", "--garment", "kilt", "-o", "/tmp/never.obj"], "my-dress"),
+        (
+            vec!["garment", "import", "/nonexistent.obj", "--name", "x"],
+            "nonexistent",
+        ),
+        (
+            vec!["warp", "--garment", "kilt", "-o", "/tmp/never.obj"],
+            "my-dress",
+        ),
     ] {
         let o = drape(&[&["--assets", a][..], &args].concat());
         assert!(!o.status.success(), "{args:?} succeeded");

@@ -36,7 +36,13 @@ fn every_garment_has_its_openings() {
     for t in built() {
         let loops = cut::directed_boundary_loops(&t.mesh);
         let expected = if t.meta.name == "jeans" { 3 } else { 4 };
-        assert_eq!(loops.len(), expected, "{}: {} openings", t.meta.name, loops.len());
+        assert_eq!(
+            loops.len(),
+            expected,
+            "{}: {} openings",
+            t.meta.name,
+            loops.len()
+        );
         // And nothing else is open or torn: every edge has one or two triangles.
         sim::cloth::model::validate_mesh(&t.mesh).unwrap();
     }
@@ -51,10 +57,20 @@ fn garments_rest_outside_the_canonical_body() {
             .mesh
             .vertices
             .iter()
-            .filter(|p| body.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0) || body.inside(**p))
+            .filter(|p| {
+                body.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0) || body.inside(**p)
+            })
             .count();
-        assert_eq!(inside, 0, "{}: {inside} vertices inside the body", t.meta.name);
-        assert_eq!(t.meta.build["relaxed"], true, "{}: relaxation did not converge", t.meta.name);
+        assert_eq!(
+            inside, 0,
+            "{}: {inside} vertices inside the body",
+            t.meta.name
+        );
+        assert_eq!(
+            t.meta.build["relaxed"], true,
+            "{}: relaxation did not converge",
+            t.meta.name
+        );
     }
 }
 
@@ -162,7 +178,10 @@ fn templates_round_trip_through_their_file() {
     assert_eq!(back.bindings, t.bindings);
     // (serde_json parses floats to the nearest few ulps, so the build figures are compared
     // by their fields.)
-    assert_eq!((&back.meta.name, &back.meta.key), (&t.meta.name, &t.meta.key));
+    assert_eq!(
+        (&back.meta.name, &back.meta.key),
+        (&t.meta.name, &t.meta.key)
+    );
     assert_eq!(back.meta.build["vertices"], t.meta.build["vertices"]);
     // A truncated file is refused with a reason.
     std::fs::write(&path, &t.encode()[..100]).unwrap();
@@ -208,7 +227,10 @@ fn bad_user_garments_are_rejected_with_a_reason() {
     // Shrunk into the body.
     let mut small = t.mesh.clone();
     let c = small.vertices.iter().copied().sum::<Vec3>() / small.vertices.len() as f32;
-    small.vertices.iter_mut().for_each(|p| *p = c + (*p - c) * 0.8);
+    small
+        .vertices
+        .iter_mut()
+        .for_each(|p| *p = c + (*p - c) * 0.8);
     let r = reason(import(small));
     assert!(r.contains("inside"), "{r}");
     // Far from the body.
@@ -239,5 +261,8 @@ fn bad_user_garments_are_rejected_with_a_reason() {
 fn unknown_garments_are_named_in_the_error() {
     let lib = garment::Library::new(&default_assets_dir());
     let err = lib.get("kilt", 3000, model(), &mut |_| {}).unwrap_err();
-    assert!(err.to_string().contains("tshirt, sweater, dress, jeans"), "{err}");
+    assert!(
+        err.to_string().contains("tshirt, sweater, dress, jeans"),
+        "{err}"
+    );
 }

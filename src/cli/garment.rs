@@ -114,14 +114,17 @@ pub fn template(
     model: &BodyModel,
 ) -> anyhow::Result<Template> {
     let lib = Library::new(&ctx.assets);
-    let vertices = resolution.unwrap_or_else(|| {
-        sim::garment::built_in(name).map_or(10_000, |d| d.vertices)
-    });
+    let vertices =
+        resolution.unwrap_or_else(|| sim::garment::built_in(name).map_or(10_000, |d| d.vertices));
     Ok(lib.get(name, vertices, model, &mut |msg| eprintln!("{msg}"))?)
 }
 
 /// Renders meshes over a body, front and side.
-pub fn render(body: &[glam::Vec3], model: &BodyModel, garment: &TriMesh) -> anyhow::Result<Vec<u8>> {
+pub fn render(
+    body: &[glam::Vec3],
+    model: &BodyModel,
+    garment: &TriMesh,
+) -> anyhow::Result<Vec<u8>> {
     Ok(eval::render::render_png(
         &[
             eval::render::Layer::new(body, &model.triangles, eval::render::BODY_COLOUR),
@@ -208,7 +211,8 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             if force {
                 let p = lib.built_path(&name, vertices);
                 if p.exists() {
-                    std::fs::remove_file(&p).with_context(|| format!("cannot remove {}", p.display()))?;
+                    std::fs::remove_file(&p)
+                        .with_context(|| format!("cannot remove {}", p.display()))?;
                 }
             }
             let t = lib.get(&name, vertices, &model, &mut |msg| eprintln!("{msg}"))?;
@@ -303,7 +307,10 @@ pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
     let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
     let t = template(ctx, &args.garment, args.resolution, &model)?;
     let posed = target.pose(&resolved.pose);
-    let warped = TriMesh::new(t.warp(&canonical, &target, &posed), t.mesh.triangles.clone());
+    let warped = TriMesh::new(
+        t.warp(&canonical, &target, &posed),
+        t.mesh.triangles.clone(),
+    );
     let image = match &args.png {
         Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &warped)?)),
         None => None,
@@ -405,12 +412,18 @@ fn check(
         "{name}: {} vertices, {} drapes ({}), {} substeps, both cores across drapes",
         t.len(),
         cases.len(),
-        if corners { "corner bodies, rest pose" } else { "sampled bodies and poses" },
+        if corners {
+            "corner bodies, rest pose"
+        } else {
+            "sampled bodies and poses"
+        },
         config.substeps
     );
     let bar = indicatif::ProgressBar::new(cases.len() as u64).with_style(
-        indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} drapes, {elapsed} (eta {eta})")?
-            .progress_chars("=> "),
+        indicatif::ProgressStyle::with_template(
+            "{prefix} [{bar:30}] {pos}/{len} drapes, {elapsed} (eta {eta})",
+        )?
+        .progress_chars("=> "),
     );
     bar.set_prefix("check");
     let t0 = std::time::Instant::now();
@@ -439,7 +452,14 @@ fn check(
                 pose.clone(),
                 config.morph_frames,
             )?;
-            let d = drape::drape(&cloth, &t.mesh.vertices, &motion, &config, false, &mut |_| {});
+            let d = drape::drape(
+                &cloth,
+                &t.mesh.vertices,
+                &motion,
+                &config,
+                false,
+                &mut |_| {},
+            );
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
@@ -480,7 +500,10 @@ fn check(
         println!(
             "DQS warp on {} bodies and poses: {:.3}% of edges stretched by more than 30% on average, {:.3}% at most; {} warps above 1%",
             rows.len(),
-            summary["warp_edges_over_30pct_mean"].as_f64().unwrap_or(0.0) * 100.0,
+            summary["warp_edges_over_30pct_mean"]
+                .as_f64()
+                .unwrap_or(0.0)
+                * 100.0,
             summary["warp_edges_over_30pct_max"].as_f64().unwrap_or(0.0) * 100.0,
             summary["warps_over_1pct"]
         );
@@ -494,12 +517,16 @@ fn check(
             );
         }
         if let Some(p) = report {
-            let json = serde_json::to_string_pretty(&serde_json::json!({"summary": summary, "warps": rows}))?;
+            let json = serde_json::to_string_pretty(
+                &serde_json::json!({"summary": summary, "warps": rows}),
+            )?;
             sim::io::write_all_or_nothing(&[(&p, json.as_bytes())])?;
         }
         return Ok(());
     }
-    println!("case          height  converged  frames  time    strain p95  max      deepest  warp >30%");
+    println!(
+        "case          height  converged  frames  time    strain p95  max      deepest  warp >30%"
+    );
     for r in &rows {
         println!(
             "{:12}  {:.2} m  {:9}  {:6}  {:5.2} s  {:8.2}%  {:6.1}%  {:5.2} mm  {:.2}%",
@@ -515,7 +542,11 @@ fn check(
         );
     }
     let n = rows.len().max(1) as f64;
-    let f = |k: &str| rows.iter().map(|r| r[k].as_f64().unwrap_or(0.0)).collect::<Vec<f64>>();
+    let f = |k: &str| {
+        rows.iter()
+            .map(|r| r[k].as_f64().unwrap_or(0.0))
+            .collect::<Vec<f64>>()
+    };
     let p95 = f("strain_p95");
     let converged = rows.iter().filter(|r| r["converged"] == true).count();
     let summary = serde_json::json!({
@@ -543,12 +574,16 @@ fn check(
         summary["share_p95_below_3pct"].as_f64().unwrap_or(0.0) * 100.0,
         summary["share_p95_below_5pct"].as_f64().unwrap_or(0.0) * 100.0,
         summary["seconds_per_drape_mean"].as_f64().unwrap_or(0.0),
-        summary["warp_edges_over_30pct_mean"].as_f64().unwrap_or(0.0) * 100.0,
+        summary["warp_edges_over_30pct_mean"]
+            .as_f64()
+            .unwrap_or(0.0)
+            * 100.0,
         summary["warp_edges_over_30pct_max"].as_f64().unwrap_or(0.0) * 100.0,
         summary["wall_seconds"].as_f64().unwrap_or(0.0),
     );
     if let Some(p) = report {
-        let json = serde_json::to_string_pretty(&serde_json::json!({"summary": summary, "drapes": rows}))?;
+        let json =
+            serde_json::to_string_pretty(&serde_json::json!({"summary": summary, "drapes": rows}))?;
         sim::io::write_all_or_nothing(&[(&p, json.as_bytes())])?;
     }
     Ok(())
@@ -601,12 +636,20 @@ fn gallery(
     };
     let mut images = vec![
         eval::render::render(
-            &[Layer::new(&canonical.vertices, &model.triangles, BODY_COLOUR)],
+            &[Layer::new(
+                &canonical.vertices,
+                &model.triangles,
+                BODY_COLOUR,
+            )],
             &opts,
         )?,
         picture(&canonical.vertices, &t.mesh.vertices)?,
         eval::render::render(
-            &[Layer::new(&t.mesh.vertices, &t.mesh.triangles, GARMENT_COLOUR)],
+            &[Layer::new(
+                &t.mesh.vertices,
+                &t.mesh.triangles,
+                GARMENT_COLOUR,
+            )],
             &opts,
         )?,
     ];
@@ -627,7 +670,14 @@ fn gallery(
             pose.pose.clone(),
             config.morph_frames,
         )?;
-        let d = drape::drape(&cloth, &t.mesh.vertices, &motion, &config, true, &mut |_| {});
+        let d = drape::drape(
+            &cloth,
+            &t.mesh.vertices,
+            &motion,
+            &config,
+            true,
+            &mut |_| {},
+        );
         let r = &d.report;
         println!(
             "row {}: random:{s}, body {:.2} m (gender {:.2}, weight {:.2}), pose {}; DQS warp, then the drape: {}, strain p95 {:.1}%, {:.1} s",
@@ -652,6 +702,12 @@ fn gallery(
     }
     let grid = eval::render::grid(&images, 3, opts.background);
     sim::io::write_all_or_nothing(&[(output, &eval::render::encode_png(&grid)?)])?;
-    println!("{}: {} x {} pixels -> {}", name, grid.width, grid.height, output.display());
+    println!(
+        "{}: {} x {} pixels -> {}",
+        name,
+        grid.width,
+        grid.height,
+        output.display()
+    );
     Ok(())
 }

@@ -297,7 +297,8 @@ pub fn import(dir: &Path, wheel_sha256: &str) -> Result<(BodyModel, Vec<HelperMe
 
     // Geometry.
     let obj_path = data.join("3dobjs/base.obj");
-    let (all_vertices, quads, helper_quads) = parse_base_obj(&r.read_text("3dobjs/base.obj")?, &obj_path)?;
+    let (all_vertices, quads, helper_quads) =
+        parse_base_obj(&r.read_text("3dobjs/base.obj")?, &obj_path)?;
     if all_vertices.len() < BODY_VERTICES {
         return Err(import_err(
             &obj_path,

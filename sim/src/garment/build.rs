@@ -15,9 +15,9 @@ use std::time::Instant;
 
 use glam::Vec3;
 
+use super::GarmentError;
 use super::cut::{self, Plane};
 use super::def::{Direction, GarmentDef, PlaneDef};
-use super::GarmentError;
 use crate::body::ShapedBody;
 use crate::cloth::collision::BodyCollider;
 use crate::cloth::drape::{self, StaticBody};
@@ -175,12 +175,18 @@ fn part(
 }
 
 /// Which part each vertex belongs to: with a join, part 1 lies beyond its plane.
-pub fn part_of(def: &GarmentDef, body: &ShapedBody<'_>, x: &[Vec3]) -> Result<Vec<u8>, GarmentError> {
+pub fn part_of(
+    def: &GarmentDef,
+    body: &ShapedBody<'_>,
+    x: &[Vec3],
+) -> Result<Vec<u8>, GarmentError> {
     Ok(match &def.join {
         None => vec![0; x.len()],
         Some(j) => {
             let plane = place(j, body)?;
-            x.iter().map(|&p| u8::from(plane.distance(p) > 0.0)).collect()
+            x.iter()
+                .map(|&p| u8::from(plane.distance(p) > 0.0))
+                .collect()
         }
     })
 }
@@ -290,7 +296,14 @@ pub fn build(
         ..config.clone()
     };
     let model = ClothModel::new(&mesh, &relax_config, &[])?;
-    let d = drape::drape(&model, &mesh.vertices, &still, &relax_config, true, &mut |_| {});
+    let d = drape::drape(
+        &model,
+        &mesh.vertices,
+        &still,
+        &relax_config,
+        true,
+        &mut |_| {},
+    );
     if let Some(f) = &d.report.failure {
         return Err(GarmentError::Definition(format!(
             "{}: relaxing the template on the canonical body failed: {f}",

@@ -62,7 +62,10 @@ fn triangle_neighbours(triangles: &[[u32; 3]]) -> Vec<[u32; 3]> {
     for (t, tri) in triangles.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (tri[k], tri[(k + 1) % 3]);
-            by_edge.entry((a.min(b), a.max(b))).or_default().push(t as u32);
+            by_edge
+                .entry((a.min(b), a.max(b)))
+                .or_default()
+                .push(t as u32);
         }
     }
     triangles
@@ -101,10 +104,10 @@ pub fn cut(mesh: &TriMesh, region: Region, seed: Vec3) -> TriMesh {
         }
     }
     // The seed triangle: one using the vertex beyond the plane nearest to the seed.
-    let Some(start) = (0..x.len())
-        .filter(|&i| d[i] > 0.0)
-        .min_by(|&a, &b| x[a].distance_squared(seed).total_cmp(&x[b].distance_squared(seed)))
-    else {
+    let Some(start) = (0..x.len()).filter(|&i| d[i] > 0.0).min_by(|&a, &b| {
+        x[a].distance_squared(seed)
+            .total_cmp(&x[b].distance_squared(seed))
+    }) else {
         return TriMesh::new(x, mesh.triangles.clone());
     };
     let reaches = |t: &[u32; 3]| t.iter().any(|&i| d[i as usize] > 0.0);
@@ -294,7 +297,8 @@ pub fn bridge(top: &TriMesh, a: &[u32], bottom: &TriMesh, b: &[u32]) -> TriMesh 
         } else if j == m {
             true
         } else {
-            p(at_a(i + 1)).distance_squared(p(at_b(j))) <= p(at_a(i)).distance_squared(p(at_b(j + 1)))
+            p(at_a(i + 1)).distance_squared(p(at_b(j)))
+                <= p(at_a(i)).distance_squared(p(at_b(j + 1)))
         };
         if advance_a {
             strip.push([at_a(i), at_a(i + 1), at_b(j)]);
@@ -332,7 +336,10 @@ mod tests {
             point: Vec3::new(0.0, 0.52, 0.0),
             normal: Vec3::Y,
         };
-        let region = Region { plane, within: None };
+        let region = Region {
+            plane,
+            within: None,
+        };
         let cut = cut(&tube, region, Vec3::new(0.0, 1.0, 0.0));
         let top = cut.vertices.iter().map(|p| p.y).fold(f32::MIN, f32::max);
         assert!((top - 0.52).abs() < 1e-5, "top at {top}");
@@ -341,7 +348,10 @@ mod tests {
         // The new opening lies in the plane.
         let in_plane = loops
             .iter()
-            .filter(|l| l.iter().all(|&i| (cut.vertices[i as usize].y - 0.52).abs() < 1e-5))
+            .filter(|l| {
+                l.iter()
+                    .all(|&i| (cut.vertices[i as usize].y - 0.52).abs() < 1e-5)
+            })
             .count();
         assert_eq!(in_plane, 1);
         // A seed far from anything beyond the plane changes nothing else: a plane that
@@ -350,8 +360,14 @@ mod tests {
             point: Vec3::new(0.0, 2.0, 0.0),
             normal: Vec3::Y,
         };
-        let region = Region { plane: miss, within: None };
-        assert_eq!(super::cut(&tube, region, Vec3::Y * 3.0).triangles.len(), tube.triangles.len());
+        let region = Region {
+            plane: miss,
+            within: None,
+        };
+        assert_eq!(
+            super::cut(&tube, region, Vec3::Y * 3.0).triangles.len(),
+            tube.triangles.len()
+        );
     }
 
     #[test]
@@ -360,8 +376,14 @@ mod tests {
         let lower = primitives::tube(Vec3::new(0.0, -0.55, 0.0), 0.12, 0.5, 17, 5);
         let la = directed_boundary_loops(&upper);
         let lb = directed_boundary_loops(&lower);
-        let a = la.iter().find(|l| upper.vertices[l[0] as usize].y < 0.6).unwrap();
-        let b = lb.iter().find(|l| lower.vertices[l[0] as usize].y > -0.1).unwrap();
+        let a = la
+            .iter()
+            .find(|l| upper.vertices[l[0] as usize].y < 0.6)
+            .unwrap();
+        let b = lb
+            .iter()
+            .find(|l| lower.vertices[l[0] as usize].y > -0.1)
+            .unwrap();
         let joined = bridge(&upper, a, &lower, b);
         assert_eq!(directed_boundary_loops(&joined).len(), 2);
         // Every interior edge is used once in each direction.
@@ -371,7 +393,13 @@ mod tests {
                 *dir.entry((t[k], t[(k + 1) % 3])).or_default() += 1;
             }
         }
-        assert!(dir.values().all(|&c| c == 1), "an edge is used twice the same way");
-        assert_eq!(joined.triangles.len(), upper.triangles.len() + lower.triangles.len() + 24 + 17);
+        assert!(
+            dir.values().all(|&c| c == 1),
+            "an edge is used twice the same way"
+        );
+        assert_eq!(
+            joined.triangles.len(),
+            upper.triangles.len() + lower.triangles.len() + 24 + 17
+        );
     }
 }

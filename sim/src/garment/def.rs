@@ -116,8 +116,7 @@ impl CutDef {
 impl GarmentDef {
     /// Parses and checks a definition; `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, String> {
-        let def: GarmentDef =
-            toml::from_str(text).map_err(|e| format!("{origin}: {e}"))?;
+        let def: GarmentDef = toml::from_str(text).map_err(|e| format!("{origin}: {e}"))?;
         if def.parts.is_empty() || def.parts.len() > 2 {
             return Err(format!("{origin}: a garment has one or two parts"));
         }
@@ -140,8 +139,20 @@ impl GarmentDef {
 
 /// The built-in garments, in the paper's order: name and definition text.
 pub const BUILT_IN: [(&str, &str); 4] = [
-    ("tshirt", include_str!("../../../configs/garments/tshirt.toml")),
-    ("sweater", include_str!("../../../configs/garments/sweater.toml")),
-    ("dress", include_str!("../../../configs/garments/dress.toml")),
-    ("jeans", include_str!("../../../configs/garments/jeans.toml")),
+    (
+        "tshirt",
+        include_str!("../../../configs/garments/tshirt.toml"),
+    ),
+    (
+        "sweater",
+        include_str!("../../../configs/garments/sweater.toml"),
+    ),
+    (
+        "dress",
+        include_str!("../../../configs/garments/dress.toml"),
+    ),
+    (
+        "jeans",
+        include_str!("../../../configs/garments/jeans.toml"),
+    ),
 ];

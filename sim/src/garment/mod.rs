@@ -119,7 +119,11 @@ fn skin_mesh(
     mesh: TriMesh,
     canonical: &ShapedBody<'_>,
     only: &[Vec<u16>],
-) -> (TriMesh, crate::body::skinning::SkinWeights, Vec<skin::Binding>) {
+) -> (
+    TriMesh,
+    crate::body::skinning::SkinWeights,
+    Vec<skin::Binding>,
+) {
     let model = canonical.model;
     let collider = BodyCollider::new(&canonical.vertices, &model.triangles, 0.01);
     let bindings = skin::bind(&mesh.vertices, &collider);
@@ -162,7 +166,10 @@ pub fn build_template(
         };
         restricted.push(list);
     }
-    let only: Vec<Vec<u16>> = parts.iter().map(|&p| restricted[p as usize].clone()).collect();
+    let only: Vec<Vec<u16>> = parts
+        .iter()
+        .map(|&p| restricted[p as usize].clone())
+        .collect();
     let (mesh, skin, bindings) = skin_mesh(built.mesh, canonical, &only);
     let a = built.angles;
     Ok(Template {
@@ -220,7 +227,9 @@ impl Library {
 
     /// File of an imported garment.
     pub fn user_path(&self, name: &str) -> PathBuf {
-        self.assets.join("garments/user").join(format!("{name}.safetensors"))
+        self.assets
+            .join("garments/user")
+            .join(format!("{name}.safetensors"))
     }
 
     /// Names of the imported garments.
@@ -300,7 +309,10 @@ impl Library {
                     }
                 }
             }
-            built(&format!("building {name} at {vertices} vertices (cached in {})", path.display()));
+            built(&format!(
+                "building {name} at {vertices} vertices (cached in {})",
+                path.display()
+            ));
             let canonical = model.shape(&Default::default())?;
             let t = self.build(name, vertices, &canonical)?;
             store(&t, &path)?;

@@ -62,7 +62,10 @@ pub fn transfer_weights(
         let row = &mut dense[v * bones..(v + 1) * bones];
         let tri = body_triangles[b.triangle as usize];
         for (k, &bv) in tri.iter().enumerate() {
-            let (ib, w) = (&body_skin.bones[bv as usize], &body_skin.weights[bv as usize]);
+            let (ib, w) = (
+                &body_skin.bones[bv as usize],
+                &body_skin.weights[bv as usize],
+            );
             for s in 0..4 {
                 row[ib[s] as usize] += b.bary[k] * w[s];
             }
@@ -96,7 +99,11 @@ pub fn transfer_weights(
             }
             let inv = 1.0 / nb.len() as f32;
             for j in 0..bones {
-                let mean: f32 = nb.iter().map(|&u| dense[u as usize * bones + j]).sum::<f32>() * inv;
+                let mean: f32 = nb
+                    .iter()
+                    .map(|&u| dense[u as usize * bones + j])
+                    .sum::<f32>()
+                    * inv;
                 next[v * bones + j] = 0.5 * dense[v * bones + j] + 0.5 * mean;
             }
         }

@@ -120,7 +120,10 @@ impl Template {
         let views: Vec<(&str, TensorView<'_>)> = buffers
             .iter()
             .map(|(name, dtype, shape, data)| {
-                (*name, TensorView::new(*dtype, shape.clone(), data).expect("sizes match"))
+                (
+                    *name,
+                    TensorView::new(*dtype, shape.clone(), data).expect("sizes match"),
+                )
             })
             .collect();
         let mut info = HashMap::new();
@@ -150,7 +153,10 @@ impl Template {
             .ok_or_else(|| bad("no `drape` metadata".into()))
             .and_then(|j| serde_json::from_str(j).map_err(|e| bad(format!("metadata: {e}"))))?;
         if meta.format != FORMAT {
-            return Err(bad(format!("format {:?}, expected {FORMAT:?}", meta.format)));
+            return Err(bad(format!(
+                "format {:?}, expected {FORMAT:?}",
+                meta.format
+            )));
         }
         let st = SafeTensors::deserialize(&bytes).map_err(|e| bad(format!("safetensors: {e}")))?;
         let get = |name: &str, dtype: Dtype, shape_tail: &[usize]| {
@@ -203,11 +209,16 @@ impl Template {
                 .chunks_exact(4)
                 .map(|c| [c[0], c[1], c[2], c[3]].map(u16::from))
                 .collect(),
-            weights: as_f32(&wd).chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect(),
+            weights: as_f32(&wd)
+                .chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]])
+                .collect(),
         };
         let tri = as_u32(&td);
         if tri.iter().any(|&t| t as usize >= body_triangles) {
-            return Err(bad("a binding names a triangle the body does not have".into()));
+            return Err(bad(
+                "a binding names a triangle the body does not have".into()
+            ));
         }
         let bindings = tri
             .iter()
@@ -272,6 +283,10 @@ impl Template {
         shaped: &ShapedBody<'_>,
         posed: &PosedBody,
     ) -> Vec<Vec3> {
-        skinning::dqs(&self.reshape(canonical, shaped), &self.skin, &posed.skinning)
+        skinning::dqs(
+            &self.reshape(canonical, shaped),
+            &self.skin,
+            &posed.skinning,
+        )
     }
 }
