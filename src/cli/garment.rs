@@ -368,7 +368,6 @@ fn check(
 ) -> anyhow::Result<()> {
     use dataset::sampling::{PosePrior, ShapeRanges};
     use rayon::prelude::*;
-    use sim::cloth::drape::{self, BodyMorph};
     use sim::cloth::{ClothModel, SimConfig};
 
     let config = match &config {
@@ -445,21 +444,7 @@ fn check(
                     }),
                 }));
             }
-            let motion = BodyMorph::new(
-                &model,
-                ShapeParams::default(),
-                *shape,
-                pose.clone(),
-                config.morph_frames,
-            )?;
-            let d = drape::drape(
-                &cloth,
-                &t.mesh.vertices,
-                &motion,
-                &config,
-                false,
-                &mut |_| {},
-            );
+            let d = drape_from_canonical(&model, &cloth, &t, *shape, &pose, &config, false)?;
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
@@ -612,7 +597,6 @@ fn gallery(
     output: &Path,
 ) -> anyhow::Result<()> {
     use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer, RenderOptions};
-    use sim::cloth::drape::{self, BodyMorph};
     use sim::cloth::{ClothModel, SimConfig};
 
     let (model, library) = load(ctx)?;
@@ -663,21 +647,7 @@ fn gallery(
         let target = model.shape(&shape)?;
         let posed = target.pose(&pose.pose);
         let warp = t.warp(&canonical, &target, &posed);
-        let motion = BodyMorph::new(
-            &model,
-            ShapeParams::default(),
-            shape,
-            pose.pose.clone(),
-            config.morph_frames,
-        )?;
-        let d = drape::drape(
-            &cloth,
-            &t.mesh.vertices,
-            &motion,
-            &config,
-            true,
-            &mut |_| {},
-        );
+        let d = drape_from_canonical(&model, &cloth, &t, shape, &pose.pose, &config, true)?;
         let r = &d.report;
         println!(
             "row {}: random:{s}, body {:.2} m (gender {:.2}, weight {:.2}), pose {}; DQS warp, then the drape: {}, strain p95 {:.1}%, {:.1} s",
@@ -710,4 +680,32 @@ fn gallery(
         output.display()
     );
     Ok(())
+}
+
+/// Drapes a template from the canonical body morphing to `shape` and `pose` (the paper's
+/// protocol); `parallel` lets the drape use rayon's threads.
+fn drape_from_canonical(
+    model: &BodyModel,
+    cloth: &sim::cloth::ClothModel,
+    t: &Template,
+    shape: ShapeParams,
+    pose: &sim::body::Pose,
+    config: &sim::cloth::SimConfig,
+    parallel: bool,
+) -> anyhow::Result<sim::cloth::DrapeResult> {
+    let motion = sim::cloth::drape::BodyMorph::new(
+        model,
+        ShapeParams::default(),
+        shape,
+        pose.clone(),
+        config.morph_frames,
+    )?;
+    Ok(sim::cloth::drape::drape(
+        cloth,
+        &t.mesh.vertices,
+        &motion,
+        config,
+        parallel,
+        &mut |_| {},
+    ))
 }
