@@ -27,8 +27,15 @@ use crate::mesh::{TriMesh, remesh};
 /// Substeps per frame of the relaxation, at least. One constraint sweep per substep leaves a
 /// hanging garment stretched by about `g h^2 N^2` (N edges below its support): at 10
 /// substeps the jeans (about 100 edges from waist to hem) stretch over the hips and fall to
-/// the feet; at 40 they hang from the hips with p95 strain 2%.
-pub const RELAX_SUBSTEPS: u32 = 40;
+/// the feet; at 30 they hang from the hips.
+pub const RELAX_SUBSTEPS: u32 = 30;
+
+/// Velocity damping of the relaxation, at least (1/s). Only the rest state of the relaxation
+/// matters, and from about 30 substeps a frame particles in or near contact keep jittering
+/// by 0.5 to 1 mm a frame under the default damping (2/s): friction's stick and slip at
+/// tiny substeps (the 3k dress and sweater never met the rest test; with 6/s they rest
+/// within 200 frames). See `docs/solver.md`.
+pub const RELAX_DAMPING: f32 = 6.0;
 
 /// Settling frames of the relaxation, at most: a garment that creeps slowly on the body
 /// (the sweater's sleeves) may need more than a drape's 600.
@@ -293,6 +300,7 @@ pub fn build(
     let relax_config = SimConfig {
         substeps: config.substeps.max(RELAX_SUBSTEPS),
         max_frames: config.max_frames.max(RELAX_MAX_FRAMES),
+        damping: config.damping.max(RELAX_DAMPING),
         ..config.clone()
     };
     let model = ClothModel::new(&mesh, &relax_config, &[])?;

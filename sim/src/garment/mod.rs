@@ -33,7 +33,7 @@ pub use template::Template;
 pub const HELPERS_FILE: &str = "garments/source/makehuman-helpers.obj";
 
 /// Bumped whenever the build steps change, so cached templates are rebuilt.
-pub const BUILD_VERSION: u32 = 3;
+pub const BUILD_VERSION: u32 = 4;
 
 /// The vertex count of the CPU-training variant of the built-in garments.
 pub const LOW_RESOLUTION: usize = 3_000;
