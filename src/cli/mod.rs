@@ -2,6 +2,7 @@
 
 mod bench;
 mod body;
+mod data;
 mod garment;
 mod pose_spec;
 mod simulate;
@@ -40,6 +41,11 @@ pub enum Command {
     Warp(Box<garment::WarpArgs>),
     /// Scene benchmarks that print timings and quality figures.
     Bench(bench::BenchArgs),
+    /// Generate a drape dataset (shards of bodies, DQS warps and simulated drapes) from a
+    /// config, in parallel and resumably; `--shard I/N` makes one part of a cluster job.
+    Gen(data::GenArgs),
+    /// Inspect, verify and merge datasets made by `drape gen`.
+    Data(data::DataArgs),
 }
 
 /// Options every command shares.
@@ -65,5 +71,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Garment(args) => garment::run(args, &ctx),
         Command::Warp(args) => garment::warp(*args, &ctx),
         Command::Bench(args) => bench::run(args, &ctx),
+        Command::Gen(args) => data::gen_run(args, &ctx),
+        Command::Data(args) => data::data_run(args, &ctx),
     }
 }

@@ -1,0 +1,308 @@
+//! Dataset configs (`configs/datasets/*.toml`): what to drape, on which bodies and poses,
+//! how to split and shard it, and the simulator parameters.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use sim::cloth::SimConfig;
+
+use crate::DatasetError;
+use crate::sampling::ShapeRanges;
+
+/// The built-in dataset configs, by name.
+pub const BUILT_IN: [(&str, &str); 7] = [
+    ("tiny", include_str!("../../configs/datasets/tiny.toml")),
+    ("small", include_str!("../../configs/datasets/small.toml")),
+    (
+        "cpu-reference",
+        include_str!("../../configs/datasets/cpu-reference.toml"),
+    ),
+    (
+        "cpu-reference-sweater",
+        include_str!("../../configs/datasets/cpu-reference-sweater.toml"),
+    ),
+    (
+        "cpu-reference-dress",
+        include_str!("../../configs/datasets/cpu-reference-dress.toml"),
+    ),
+    (
+        "cpu-reference-jeans",
+        include_str!("../../configs/datasets/cpu-reference-jeans.toml"),
+    ),
+    ("paper", include_str!("../../configs/datasets/paper.toml")),
+];
+
+/// Bodies per split. Splits are by body, as in the paper: a test body is never seen in
+/// training, in any pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Bodies {
+    /// Training bodies.
+    pub train: u32,
+    /// Validation bodies.
+    pub val: u32,
+    /// Test bodies.
+    pub test: u32,
+}
+
+/// Where poses come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "source", rename_all = "lowercase", deny_unknown_fields)]
+pub enum PoseSource {
+    /// The pose prior (`sampling::PosePrior`) over a pose library: the built-in
+    /// `configs/poses/library.toml` unless `library` names another TOML file.
+    Prior {
+        /// A pose library TOML replacing the built-in one (relative to the config file).
+        #[serde(default)]
+        library: Option<PathBuf>,
+    },
+    /// Frames of BVH files in a folder (every `*.bvh`, sorted by name), retargeted to each
+    /// body: a sample picks a file and a frame uniformly.
+    Bvh {
+        /// The folder (relative to the config file).
+        dir: PathBuf,
+    },
+}
+
+impl Default for PoseSource {
+    fn default() -> Self {
+        PoseSource::Prior { library: None }
+    }
+}
+
+/// One dataset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetConfig {
+    /// Name, written into the manifest.
+    pub name: String,
+    /// Garment: a built-in name or an imported one.
+    pub garment: String,
+    /// Template resolution of a built-in garment (about this many vertices).
+    pub resolution: usize,
+    /// Seed of all sampling.
+    pub seed: u64,
+    /// Bodies per split.
+    pub bodies: Bodies,
+    /// Poses per body.
+    pub poses_per_body: u32,
+    /// Samples per shard file (default 64).
+    #[serde(default = "default_shard_samples")]
+    pub samples_per_shard: u32,
+    /// Largest share of failed drapes before `drape gen` exits non-zero (default 0.03).
+    #[serde(default = "default_max_failure_rate")]
+    pub max_failure_rate: f64,
+    /// Shape ranges, sampled uniformly (default: the adult ranges of `ShapeRanges`).
+    #[serde(default)]
+    pub shapes: ShapeRanges,
+    /// Pose source (default: the built-in pose prior).
+    #[serde(default)]
+    pub poses: PoseSource,
+    /// Simulator parameters (fields left out keep the defaults of `configs/sim/default.toml`).
+    #[serde(default)]
+    pub sim: SimConfig,
+}
+
+fn default_shard_samples() -> u32 {
+    64
+}
+
+fn default_max_failure_rate() -> f64 {
+    0.03
+}
+
+/// A split of a dataset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Split {
+    /// Training.
+    Train,
+    /// Validation.
+    Val,
+    /// Test.
+    Test,
+}
+
+impl Split {
+    /// All splits in order.
+    pub const ALL: [Split; 3] = [Split::Train, Split::Val, Split::Test];
+
+    /// Its name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::Val => "val",
+            Split::Test => "test",
+        }
+    }
+
+    /// Parses a name.
+    pub fn parse(s: &str) -> Result<Split, DatasetError> {
+        Split::ALL
+            .into_iter()
+            .find(|x| x.name() == s)
+            .ok_or_else(|| {
+                DatasetError::Invalid(format!("no split named {s:?} (train, val, test)"))
+            })
+    }
+}
+
+impl DatasetConfig {
+    /// Parses and validates a config; `origin` names it in errors and anchors relative paths.
+    pub fn from_toml(text: &str, origin: &Path) -> Result<Self, DatasetError> {
+        let bad = |reason: String| DatasetError::Config {
+            path: origin.to_path_buf(),
+            reason,
+        };
+        let mut c: DatasetConfig = toml::from_str(text).map_err(|e| bad(e.to_string()))?;
+        c.validate().map_err(bad)?;
+        let base = origin.parent().unwrap_or(Path::new("."));
+        match &mut c.poses {
+            PoseSource::Prior { library: Some(p) } if p.is_relative() => *p = base.join(&*p),
+            PoseSource::Bvh { dir } if dir.is_relative() => *dir = base.join(&*dir),
+            _ => {}
+        }
+        Ok(c)
+    }
+
+    /// A built-in config by name, or a TOML file.
+    pub fn load(name_or_path: &str) -> Result<Self, DatasetError> {
+        if let Some((n, text)) = BUILT_IN.iter().find(|(n, _)| *n == name_or_path) {
+            return Self::from_toml(text, &PathBuf::from(format!("configs/datasets/{n}.toml")));
+        }
+        let path = PathBuf::from(name_or_path);
+        let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::Config {
+            path: path.clone(),
+            reason: format!(
+                "{e} (built-in configs: {})",
+                BUILT_IN.map(|(n, _)| n).join(", ")
+            ),
+        })?;
+        Self::from_toml(&text, &path)
+    }
+
+    /// Checks the numbers.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.garment.is_empty() {
+            return Err("garment is empty".into());
+        }
+        if !(100..=200_000).contains(&self.resolution) {
+            return Err(format!(
+                "resolution {} is not in 100..=200000",
+                self.resolution
+            ));
+        }
+        if self.bodies.train + self.bodies.val + self.bodies.test == 0 {
+            return Err("no bodies in any split".into());
+        }
+        if self.poses_per_body == 0 {
+            return Err("poses_per_body must be at least 1".into());
+        }
+        if self.samples_per_shard == 0 {
+            return Err("samples_per_shard must be at least 1".into());
+        }
+        if !(0.0..=1.0).contains(&self.max_failure_rate) {
+            return Err("max_failure_rate must be in [0, 1]".into());
+        }
+        for (name, r) in [
+            ("gender", self.shapes.gender),
+            ("age", self.shapes.age),
+            ("muscle", self.shapes.muscle),
+            ("weight", self.shapes.weight),
+            ("height", self.shapes.height),
+            ("proportions", self.shapes.proportions),
+        ] {
+            if !(0.0 <= r[0] && r[0] <= r[1] && r[1] <= 1.0) {
+                return Err(format!(
+                    "shapes.{name} = {r:?} is not a range within [0, 1]"
+                ));
+            }
+        }
+        self.sim.validate()
+    }
+
+    /// Total bodies.
+    pub fn total_bodies(&self) -> u64 {
+        (self.bodies.train + self.bodies.val + self.bodies.test) as u64
+    }
+
+    /// Total samples (bodies x poses).
+    pub fn total_samples(&self) -> u64 {
+        self.total_bodies() * self.poses_per_body as u64
+    }
+
+    /// The split of body `b` (bodies are numbered train first, then val, then test).
+    pub fn split_of_body(&self, b: u64) -> Split {
+        let (t, v) = (self.bodies.train as u64, self.bodies.val as u64);
+        if b < t {
+            Split::Train
+        } else if b < t + v {
+            Split::Val
+        } else {
+            Split::Test
+        }
+    }
+
+    /// The resolved config as canonical JSON (what the manifest stores and hashes).
+    pub fn resolved_json(&self) -> serde_json::Value {
+        serde_json::to_value(self).expect("configs serialise")
+    }
+
+    /// sha256 of the resolved config's JSON: parts of one dataset must agree on it.
+    pub fn hash(&self) -> String {
+        let text = serde_json::to_string(&self.resolved_json()).expect("json");
+        hex(&Sha256::digest(text.as_bytes()))
+    }
+}
+
+/// Lower-case hex of bytes.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_in_configs_parse_and_sizes_are_as_documented() {
+        for (name, _) in BUILT_IN {
+            let c = DatasetConfig::load(name).unwrap();
+            assert_eq!(c.name, name);
+        }
+        let c = DatasetConfig::load("cpu-reference").unwrap();
+        assert_eq!((c.bodies.train, c.bodies.val, c.bodies.test), (200, 10, 40));
+        assert_eq!(
+            (c.garment.as_str(), c.resolution, c.poses_per_body),
+            ("tshirt", 3000, 10)
+        );
+        let p = DatasetConfig::load("paper").unwrap();
+        assert_eq!((p.bodies.train, p.bodies.val, p.bodies.test), (500, 20, 80));
+    }
+
+    #[test]
+    fn bad_configs_are_refused_with_the_field() {
+        let text = BUILT_IN[0].1;
+        let err = |t: &str| {
+            DatasetConfig::from_toml(t, Path::new("x.toml"))
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(
+            err(&text.replace("poses_per_body = 2", "poses_per_body = 0"))
+                .contains("poses_per_body")
+        );
+        assert!(err(&text.replace("seed = 1", "seed = 1\nbogus = 1")).contains("bogus"));
+        assert!(err(&text.replace("resolution = 3000", "resolution = 5")).contains("resolution"));
+    }
+
+    #[test]
+    fn splits_are_by_body() {
+        let c = DatasetConfig::load("tiny").unwrap();
+        let t = c.bodies.train as u64;
+        assert_eq!(c.split_of_body(0), Split::Train);
+        assert_eq!(c.split_of_body(t), Split::Val);
+        assert_eq!(c.split_of_body(c.total_bodies() - 1), Split::Test);
+    }
+}

@@ -1,0 +1,489 @@
+//! `drape gen`: drapes every sample of a dataset (or of one part of it) in parallel and
+//! writes the shards, resumably.
+//!
+//! Files in the output folder (every one written atomically: a temporary file, then a
+//! rename):
+//!
+//! - `static.safetensors`: template, faces, canonical body (`shard.rs`);
+//! - `partial/SAMPLE.safetensors`: one finished drape, until its shard is assembled;
+//! - `records/SHARD.json`: the samples of a finished shard with the simulator's reports and
+//!   timings, and the shard's sha256;
+//! - `SPLIT-NNNNN.safetensors`: the shards;
+//! - `manifest.json` (or `manifest.part-I-of-N.json` for `--shard I/N`, joined by
+//!   `drape data merge`).
+//!
+//! Killing the program at any moment leaves only whole files; running it again skips the
+//! shards and drapes already done, and ends with shards byte-identical to an uninterrupted
+//! run's: a shard's bytes depend only on the config (each drape runs on one thread and the
+//! solver is deterministic).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+use glam::Vec3;
+use safetensors::tensor::Dtype;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use sim::body::{BodyModel, PoseLibrary, ShapeParams};
+use sim::cloth::ClothModel;
+use sim::cloth::drape::{self, BodyMorph};
+use sim::garment::template::Template;
+
+use crate::DatasetError;
+use crate::config::{DatasetConfig, hex};
+use crate::manifest::{Manifest, SampleRecord, ShardRecord};
+use crate::plan::{Poser, ShardPlan, part, sample_plan, shards};
+use crate::shard::{Row, STATIC_FILE, Static, encode_shard, serialize};
+
+/// Options of one generation run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GenOptions {
+    /// This part (0-based) of `parts`.
+    pub part: u32,
+    /// Parts the dataset is split into (1: the whole dataset).
+    pub parts: u32,
+}
+
+impl Default for GenOptions {
+    fn default() -> Self {
+        Self { part: 0, parts: 1 }
+    }
+}
+
+/// Progress of a run, for a progress bar.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Event {
+    /// Work found: `todo` drapes to run, `done` already finished (resumed).
+    Start {
+        /// Drapes to run now.
+        todo: usize,
+        /// Drapes found finished.
+        done: usize,
+    },
+    /// One drape finished.
+    Drape {
+        /// Whether it converged.
+        ok: bool,
+    },
+}
+
+/// What a run did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GenSummary {
+    /// The manifest written (whole dataset or this part).
+    pub manifest_path: PathBuf,
+    /// The manifest.
+    pub manifest: Manifest,
+    /// Drapes run by this invocation.
+    pub draped_now: usize,
+    /// Wall time of this invocation (s).
+    pub seconds: f64,
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
+    sim::io::write_all_or_nothing(&[(path, bytes)]).map_err(|e| DatasetError::Io {
+        path: path.to_path_buf(),
+        source: e.source,
+    })
+}
+
+/// sha256 of bytes, hex.
+pub fn sha256(bytes: &[u8]) -> String {
+    hex(&Sha256::digest(bytes))
+}
+
+/// The part manifest's file name.
+pub fn manifest_name(o: GenOptions) -> String {
+    if o.parts == 1 {
+        "manifest.json".into()
+    } else {
+        format!("manifest.part-{}-of-{}.json", o.part, o.parts)
+    }
+}
+
+/// A finished drape kept until its shard is assembled.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct PartialMeta {
+    record: SampleRecord,
+}
+
+/// Everything a drape needs, shared by the threads.
+struct Job<'a> {
+    config: &'a DatasetConfig,
+    model: &'a BodyModel,
+    template: &'a Template,
+    cloth: &'a ClothModel,
+    poser: &'a Poser,
+    canonical: sim::body::ShapedBody<'a>,
+}
+
+impl Job<'_> {
+    /// Drapes sample `id`: a row (None if the drape failed) and its record.
+    fn run(&self, id: u64) -> Result<(Option<Row>, SampleRecord), DatasetError> {
+        let t0 = Instant::now();
+        let c = self.config;
+        let plan = sample_plan(c, id);
+        let drawn = self.poser.draw(c, self.model, &plan)?;
+        let shaped = self.model.shape(&drawn.shape)?;
+        let posed = shaped.pose(&drawn.pose);
+        let warped = self.template.warp(&self.canonical, &shaped, &posed);
+        let warp_seconds = t0.elapsed().as_secs_f64();
+        let motion = BodyMorph::new(
+            self.model,
+            ShapeParams::default(),
+            drawn.shape,
+            drawn.pose.clone(),
+            c.sim.morph_frames,
+        )?;
+        // One thread per drape: threads go across drapes, and the bits do not depend on it.
+        let d = drape::drape(
+            self.cloth,
+            &self.template.mesh.vertices,
+            &motion,
+            &c.sim,
+            false,
+            &mut |_| {},
+        );
+        let ok = d.report.converged;
+        let record = SampleRecord {
+            id,
+            split: plan.split,
+            body: plan.body,
+            pose_index: plan.pose_index,
+            shape_seed: plan.shape_seed,
+            pose_seed: plan.pose_seed,
+            family: drawn.family.clone(),
+            pose_source: drawn.pose_source.clone(),
+            shape: drawn.shape.named().map(|(_, v)| v),
+            shard: None,
+            ok,
+            failure: d.report.failure.map(|f| f.to_string()),
+            report: serde_json::to_value(&d.report).expect("reports serialise"),
+            warp_seconds,
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        let row = ok.then(|| Row {
+            id,
+            body: posed.vertices.clone(),
+            warped,
+            draped: d.positions,
+            shape: record.shape,
+            pose: drawn.pose.rotations.clone(),
+            root: drawn.pose.root_translation,
+        });
+        Ok((row, record))
+    }
+}
+
+fn partial_path(dir: &Path, id: u64) -> PathBuf {
+    dir.join("partial").join(format!("{id:08}.safetensors"))
+}
+
+fn record_path(dir: &Path, shard: &str) -> PathBuf {
+    dir.join("records")
+        .join(shard.replace(".safetensors", ".json"))
+}
+
+fn encode_partial(row: Option<&Row>, record: &SampleRecord) -> Vec<u8> {
+    let f32s = |v: &[Vec3]| -> Vec<u8> {
+        v.iter()
+            .flat_map(|p| p.to_array())
+            .flat_map(f32::to_le_bytes)
+            .collect()
+    };
+    let tensors: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = match row {
+        None => Vec::new(),
+        Some(r) => vec![
+            ("body", Dtype::F32, vec![r.body.len(), 3], f32s(&r.body)),
+            (
+                "warped",
+                Dtype::F32,
+                vec![r.warped.len(), 3],
+                f32s(&r.warped),
+            ),
+            (
+                "draped",
+                Dtype::F32,
+                vec![r.draped.len(), 3],
+                f32s(&r.draped),
+            ),
+        ],
+    };
+    serialize(
+        &tensors,
+        &PartialMeta {
+            record: record.clone(),
+        },
+    )
+}
+
+fn decode_partial(
+    path: &Path,
+    bytes: &[u8],
+    nb: usize,
+    n: usize,
+) -> Result<(Option<[Vec<Vec3>; 3]>, SampleRecord), DatasetError> {
+    let meta: PartialMeta = crate::shard::Reader::meta(bytes, path)?;
+    if !meta.record.ok {
+        return Ok((None, meta.record));
+    }
+    let r = crate::shard::Reader::new(path, bytes)?;
+    let v3 = |d: Vec<f32>| d.chunks_exact(3).map(Vec3::from_slice).collect::<Vec<_>>();
+    let body = v3(r.f32s("body", &[Some(nb), Some(3)])?);
+    let warped = v3(r.f32s("warped", &[Some(n), Some(3)])?);
+    let draped = v3(r.f32s("draped", &[Some(n), Some(3)])?);
+    Ok((Some([body, warped, draped]), meta.record))
+}
+
+/// Loads the body model, the pose library and the garment template for a config.
+pub fn load_inputs(
+    config: &DatasetConfig,
+    assets: &Path,
+    built: &mut dyn FnMut(&str),
+) -> Result<(BodyModel, PoseLibrary, Template), DatasetError> {
+    let model = BodyModel::load_from_dir(assets)?;
+    let library = PoseLibrary::from_toml(
+        &model.skeleton,
+        sim::body::pose::LIBRARY_TOML,
+        &model.t_pose,
+    )?;
+    let lib = sim::garment::Library::new(assets);
+    let template = lib.get(&config.garment, config.resolution, &model, built)?;
+    Ok((model, library, template))
+}
+
+/// Assembles a shard whose samples are all finished: writes the shard, then its record,
+/// then removes the partial files.
+fn assemble(
+    dir: &Path,
+    shard: &ShardPlan,
+    nb: usize,
+    n: usize,
+    bones: usize,
+    plan_rows: &dyn Fn(u64) -> Result<Row, DatasetError>,
+) -> Result<ShardRecord, DatasetError> {
+    let mut rows = Vec::new();
+    let mut samples = Vec::new();
+    for &id in &shard.samples {
+        let p = partial_path(dir, id);
+        let bytes = std::fs::read(&p).map_err(|e| DatasetError::Io {
+            path: p.clone(),
+            source: e,
+        })?;
+        let (arrays, mut record) = decode_partial(&p, &bytes, nb, n)?;
+        if let Some([body, warped, draped]) = arrays {
+            let mut row = plan_rows(id)?;
+            row.body = body;
+            row.warped = warped;
+            row.draped = draped;
+            rows.push(row);
+            record.shard = Some(shard.file.clone());
+        }
+        samples.push(record);
+    }
+    let bytes = encode_shard(shard.split.name(), &rows, nb, n, bones);
+    write_atomic(&dir.join(&shard.file), &bytes)?;
+    let record = ShardRecord {
+        file: shard.file.clone(),
+        split: shard.split,
+        rows: rows.len(),
+        bytes: bytes.len() as u64,
+        sha256: sha256(&bytes),
+        samples,
+    };
+    write_atomic(
+        &record_path(dir, &shard.file),
+        &serde_json::to_vec_pretty(&record).expect("json"),
+    )?;
+    for &id in &shard.samples {
+        let _ = std::fs::remove_file(partial_path(dir, id));
+    }
+    Ok(record)
+}
+
+/// Runs (or resumes) the generation of `config` into `dir`.
+pub fn generate(
+    config: &DatasetConfig,
+    dir: &Path,
+    assets: &Path,
+    opts: GenOptions,
+    log: &mut dyn FnMut(&str),
+    progress: &(dyn Fn(Event) + Sync),
+) -> Result<GenSummary, DatasetError> {
+    let t0 = Instant::now();
+    if opts.parts == 0 || opts.part >= opts.parts {
+        return Err(DatasetError::Invalid(format!(
+            "part {} of {} does not exist (parts are 0 to {})",
+            opts.part,
+            opts.parts,
+            opts.parts.saturating_sub(1)
+        )));
+    }
+    for sub in ["", "partial", "records"] {
+        let d = dir.join(sub);
+        std::fs::create_dir_all(&d).map_err(|e| DatasetError::Io { path: d, source: e })?;
+    }
+    // A folder holds one dataset: refuse to mix configs.
+    let hash = config.hash();
+    let stamp = dir.join("config.json");
+    let resolved = serde_json::to_vec_pretty(&serde_json::json!({
+        "config_sha256": hash,
+        "config": config.resolved_json(),
+    }))
+    .expect("json");
+    match std::fs::read(&stamp) {
+        Ok(old) if old != resolved => {
+            return Err(DatasetError::Invalid(format!(
+                "{} holds a dataset of another config ({}); use a new folder",
+                dir.display(),
+                stamp.display()
+            )));
+        }
+        Ok(_) => {}
+        Err(_) => write_atomic(&stamp, &resolved)?,
+    }
+
+    let (model, library, template) = load_inputs(config, assets, log)?;
+    let canonical = model.shape(&ShapeParams::default())?;
+    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])?;
+    let poser = Poser::new(config, &model, library)?;
+    let (nb, n, bones) = (
+        canonical.vertices.len(),
+        template.mesh.vertices.len(),
+        model.skeleton.len(),
+    );
+
+    let st = Static {
+        garment_vertices: template.mesh.vertices.clone(),
+        garment_triangles: template.mesh.triangles.clone(),
+        body_triangles: model.triangles.clone(),
+        canonical_body: canonical.vertices.clone(),
+        bones,
+    };
+    let static_bytes = st.encode();
+    let static_path = dir.join(STATIC_FILE);
+    if std::fs::read(&static_path).ok().as_deref() != Some(&static_bytes[..]) {
+        write_atomic(&static_path, &static_bytes)?;
+    }
+
+    let all = shards(config);
+    let mine = part(&all, opts.part, opts.parts);
+    // What is finished already.
+    let mut records: BTreeMap<String, ShardRecord> = BTreeMap::new();
+    let mut todo: Vec<u64> = Vec::new();
+    let mut resumed = 0usize;
+    for s in &mine {
+        let rp = record_path(dir, &s.file);
+        if let (Ok(text), true) = (std::fs::read(&rp), dir.join(&s.file).exists()) {
+            if let Ok(r) = serde_json::from_slice::<ShardRecord>(&text) {
+                resumed += s.samples.len();
+                records.insert(s.file.clone(), r);
+                continue;
+            }
+        }
+        for &id in &s.samples {
+            let p = partial_path(dir, id);
+            let good = std::fs::read(&p)
+                .ok()
+                .is_some_and(|b| decode_partial(&p, &b, nb, n).is_ok());
+            if good {
+                resumed += 1;
+            } else {
+                todo.push(id);
+            }
+        }
+    }
+    progress(Event::Start {
+        todo: todo.len(),
+        done: resumed,
+    });
+
+    let job = Job {
+        config,
+        model: &model,
+        template: &template,
+        cloth: &cloth,
+        poser: &poser,
+        canonical,
+    };
+    let rebuild_row = |id: u64| -> Result<Row, DatasetError> {
+        let plan = sample_plan(config, id);
+        let d = poser.draw(config, &model, &plan)?;
+        Ok(Row {
+            id,
+            body: Vec::new(),
+            warped: Vec::new(),
+            draped: Vec::new(),
+            shape: d.shape.named().map(|(_, v)| v),
+            pose: d.pose.rotations,
+            root: d.pose.root_translation,
+        })
+    };
+    // Shards still missing samples, with the count missing.
+    let shard_of: BTreeMap<u64, usize> = mine
+        .iter()
+        .enumerate()
+        .flat_map(|(k, s)| s.samples.iter().map(move |&id| (id, k)))
+        .collect();
+    let missing: Vec<AtomicUsize> = mine.iter().map(|_| AtomicUsize::new(0)).collect();
+    for id in &todo {
+        missing[shard_of[id]].fetch_add(1, Ordering::Relaxed);
+    }
+    let done_records = Mutex::new(records);
+    let assemble_if_done = |k: usize| -> Result<(), DatasetError> {
+        let s = &mine[k];
+        if done_records.lock().expect("lock").contains_key(&s.file) {
+            return Ok(());
+        }
+        let r = assemble(dir, s, nb, n, bones, &rebuild_row)?;
+        done_records.lock().expect("lock").insert(s.file.clone(), r);
+        Ok(())
+    };
+
+    use rayon::prelude::*;
+    let draped_now = todo.len();
+    todo.par_iter()
+        .try_for_each(|&id| -> Result<(), DatasetError> {
+            let (row, record) = job.run(id)?;
+            progress(Event::Drape { ok: record.ok });
+            write_atomic(
+                &partial_path(dir, id),
+                &encode_partial(row.as_ref(), &record),
+            )?;
+            let k = shard_of[&id];
+            if missing[k].fetch_sub(1, Ordering::AcqRel) == 1 {
+                assemble_if_done(k)?;
+            }
+            Ok(())
+        })?;
+    // Shards whose drapes were all finished before this run.
+    for k in 0..mine.len() {
+        assemble_if_done(k)?;
+    }
+
+    let records = done_records.into_inner().expect("lock");
+    let manifest = Manifest::new(
+        config,
+        opts,
+        sha256(&static_bytes),
+        mine.iter().map(|s| records[&s.file].clone()).collect(),
+    );
+    let manifest_path = dir.join(manifest_name(opts));
+    write_atomic(
+        &manifest_path,
+        &serde_json::to_vec_pretty(&manifest).expect("json"),
+    )?;
+    if opts.parts == 1 {
+        let _ = std::fs::remove_dir(dir.join("partial"));
+    }
+    Ok(GenSummary {
+        manifest_path,
+        manifest,
+        draped_now,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}

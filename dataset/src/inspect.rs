@@ -1,0 +1,261 @@
+//! `drape data info`, `verify` and `merge`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::Quat;
+use serde::Serialize;
+
+use crate::DatasetError;
+use crate::config::Split;
+use crate::generate::{sha256, write_atomic};
+use crate::manifest::{Manifest, Tally};
+use crate::reader::Dataset;
+use crate::shard::STATIC_FILE;
+
+/// mean, p95 and max of a list.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Stats {
+    /// Mean.
+    pub mean: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl Stats {
+    /// Of `v` (zeros when empty).
+    pub fn of(mut v: Vec<f64>) -> Self {
+        if v.is_empty() {
+            return Self::default();
+        }
+        v.sort_by(f64::total_cmp);
+        let k = ((v.len() as f64 * 0.95).ceil() as usize).clamp(1, v.len()) - 1;
+        Self {
+            mean: v.iter().sum::<f64>() / v.len() as f64,
+            p95: v[k],
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// What `drape data info` prints.
+#[derive(Debug, Clone, Serialize)]
+pub struct Info {
+    /// Dataset name.
+    pub name: String,
+    /// Garment and vertex count.
+    pub garment: String,
+    /// Garment vertices.
+    pub vertices: usize,
+    /// Converged samples per split.
+    pub samples: BTreeMap<Split, usize>,
+    /// Failures per split.
+    pub failures_by_split: BTreeMap<Split, Tally>,
+    /// Failures per pose family.
+    pub failures_by_family: BTreeMap<String, Tally>,
+    /// Failure reasons.
+    pub failure_reasons: BTreeMap<String, usize>,
+    /// Bytes on disk (shards and static file).
+    pub bytes: u64,
+    /// p95 edge strain of converged drapes.
+    pub strain_p95: Stats,
+    /// Largest edge strain of converged drapes.
+    pub strain_max: Stats,
+    /// Deepest penetration after the push-out (m).
+    pub penetration_max_depth: Stats,
+    /// Time per sample, one thread (s).
+    pub seconds: Stats,
+    /// Each converged test pose's distance to the nearest converged training pose: mean
+    /// over bones of the rotation angle between them (degrees).
+    pub test_to_train_pose_deg: Stats,
+}
+
+/// Mean rotation angle (degrees) between two poses, over bones.
+pub fn pose_distance(a: &[Quat], b: &[Quat]) -> f64 {
+    let sum: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(p, q)| p.angle_between(*q).to_degrees() as f64)
+        .sum();
+    sum / a.len().max(1) as f64
+}
+
+/// Summarises a dataset (reads the shards of train and test for the pose distances).
+pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
+    let m = &ds.manifest;
+    let c = m.dataset_config()?;
+    let ok: Vec<_> = m.samples().filter(|s| s.ok).collect();
+    let get = |s: &crate::manifest::SampleRecord, path: &[&str]| -> f64 {
+        let mut v = &s.report;
+        for k in path {
+            v = &v[*k];
+        }
+        v.as_f64().unwrap_or(f64::NAN)
+    };
+    let stat = |path: &[&str]| Stats::of(ok.iter().map(|s| get(s, path)).collect());
+    let poses = |split: Split| -> Result<Vec<Vec<Quat>>, DatasetError> {
+        ds.samples(split).map(|s| s.map(|s| s.row.pose)).collect()
+    };
+    let (train, test) = (poses(Split::Train)?, poses(Split::Test)?);
+    let nearest: Vec<f64> = test
+        .iter()
+        .filter_map(|t| {
+            train
+                .iter()
+                .map(|r| pose_distance(t, r))
+                .min_by(f64::total_cmp)
+        })
+        .collect();
+    let mut bytes = std::fs::metadata(ds.dir.join(STATIC_FILE))
+        .map(|md| md.len())
+        .unwrap_or(0);
+    bytes += m.shards.iter().map(|s| s.bytes).sum::<u64>();
+    Ok(Info {
+        name: m.name.clone(),
+        garment: c.garment.clone(),
+        vertices: ds.statics.garment_vertices.len(),
+        samples: Split::ALL.iter().map(|&s| (s, ds.count(s))).collect(),
+        failures_by_split: m.tally_by_split(),
+        failures_by_family: m.tally_by_family(),
+        failure_reasons: m.failure_reasons(),
+        bytes,
+        strain_p95: stat(&["strain", "p95"]),
+        strain_max: stat(&["strain", "max"]),
+        penetration_max_depth: stat(&["penetration", "max_depth"]),
+        seconds: Stats::of(ok.iter().map(|s| s.seconds).collect()),
+        test_to_train_pose_deg: Stats::of(nearest),
+    })
+}
+
+/// Checks every shard: size and sha256 against the manifest, tensor shapes, finite values,
+/// ids. Returns the problems, each naming its file (empty: all good).
+pub fn verify(dir: &Path) -> Result<(usize, Vec<String>), DatasetError> {
+    let ds = Dataset::open(dir)?;
+    let mut problems = Vec::new();
+    let mut rows = 0usize;
+    for s in &ds.manifest.shards {
+        match ds.read_shard(&s.file) {
+            Ok(r) => rows += r.len(),
+            Err(e) => problems.push(e.to_string()),
+        }
+    }
+    Ok((rows, problems))
+}
+
+/// Joins the part manifests found in `dirs` (all parts of one dataset, each shard in one of
+/// the folders) into `out/manifest.json`, copying shards into `out` when they are elsewhere.
+/// Every shard's sha256 is checked on the way.
+pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest, DatasetError> {
+    let mut parts: BTreeMap<u32, (PathBuf, Manifest)> = BTreeMap::new();
+    let mut total: Option<u32> = None;
+    for d in dirs {
+        let entries = std::fs::read_dir(d).map_err(|e| DatasetError::Io {
+            path: d.clone(),
+            source: e,
+        })?;
+        for e in entries.filter_map(Result::ok) {
+            let name = e.file_name().to_string_lossy().to_string();
+            if !(name.starts_with("manifest.part-") && name.ends_with(".json")) {
+                continue;
+            }
+            let text = std::fs::read(e.path()).map_err(|err| DatasetError::Io {
+                path: e.path(),
+                source: err,
+            })?;
+            let m: Manifest =
+                serde_json::from_slice(&text).map_err(|err| DatasetError::Corrupt {
+                    path: e.path(),
+                    reason: err.to_string(),
+                })?;
+            if *total.get_or_insert(m.parts) != m.parts {
+                return Err(DatasetError::Invalid(format!(
+                    "{} is part of {} parts, others of {}",
+                    e.path().display(),
+                    m.parts,
+                    total.unwrap_or(0)
+                )));
+            }
+            if let Some((other, _)) = parts.get(&m.part) {
+                if other != d {
+                    return Err(DatasetError::Invalid(format!(
+                        "part {} found twice: in {} and {}",
+                        m.part,
+                        other.display(),
+                        d.display()
+                    )));
+                }
+            }
+            parts.insert(m.part, (d.clone(), m));
+        }
+    }
+    let n = total.ok_or_else(|| {
+        DatasetError::Invalid("no manifest.part-*.json in the folders given".into())
+    })?;
+    let missing: Vec<u32> = (0..n).filter(|i| !parts.contains_key(i)).collect();
+    if !missing.is_empty() {
+        return Err(DatasetError::Invalid(format!(
+            "parts {missing:?} of {n} are missing (run `drape gen CONFIG --shard I/{n}` for them)"
+        )));
+    }
+    let first = &parts[&0].1;
+    for (i, (d, m)) in &parts {
+        if m.config_sha256 != first.config_sha256 || m.static_sha256 != first.static_sha256 {
+            return Err(DatasetError::Invalid(format!(
+                "part {i} in {} was made from another config or template",
+                d.display()
+            )));
+        }
+    }
+    std::fs::create_dir_all(out).map_err(|e| DatasetError::Io {
+        path: out.to_path_buf(),
+        source: e,
+    })?;
+    let copy = |from: &Path, name: &str, sha: &str| -> Result<(), DatasetError> {
+        let src = from.join(name);
+        let bytes = std::fs::read(&src).map_err(|e| DatasetError::Io {
+            path: src.clone(),
+            source: e,
+        })?;
+        if sha256(&bytes) != sha {
+            return Err(DatasetError::Corrupt {
+                path: src,
+                reason: "sha256 differs from its part manifest's".into(),
+            });
+        }
+        let dst = out.join(name);
+        if std::fs::canonicalize(&src).ok() != std::fs::canonicalize(&dst).ok() {
+            write_atomic(&dst, &bytes)?;
+        }
+        Ok(())
+    };
+    copy(&parts[&0].0, STATIC_FILE, &first.static_sha256)?;
+    // Shards in plan order: part k holds plan shards k, k + n, ...
+    let mut shards = Vec::new();
+    let longest = parts
+        .values()
+        .map(|(_, m)| m.shards.len())
+        .max()
+        .unwrap_or(0);
+    for j in 0..longest {
+        for i in 0..n {
+            let (d, m) = &parts[&i];
+            if let Some(s) = m.shards.get(j) {
+                copy(d, &s.file, &s.sha256)?;
+                shards.push(s.clone());
+            }
+        }
+    }
+    let merged = Manifest {
+        part: 0,
+        parts: 1,
+        shards,
+        ..first.clone()
+    };
+    write_atomic(
+        &out.join("manifest.json"),
+        &serde_json::to_vec_pretty(&merged).expect("json"),
+    )?;
+    Ok(merged)
+}

@@ -1,0 +1,189 @@
+//! The manifest (`manifest.json`): the resolved config, program version and git revision,
+//! every sample with its seed, split and simulator report, every shard with its sha256.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::{DatasetConfig, Split};
+use crate::generate::GenOptions;
+
+/// Format tag of manifests.
+pub const MANIFEST_FORMAT: &str = "drape-dataset/1";
+
+/// The git revision the program was built from ("unknown" outside a checkout).
+pub const GIT_REVISION: &str = env!("DRAPE_GIT_REVISION");
+
+/// One sample.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SampleRecord {
+    /// Sample id.
+    pub id: u64,
+    /// Split.
+    pub split: Split,
+    /// Body number.
+    pub body: u64,
+    /// Pose number of the body.
+    pub pose_index: u32,
+    /// Seed of the shape.
+    pub shape_seed: u64,
+    /// Seed of the pose.
+    pub pose_seed: u64,
+    /// Pose family.
+    pub family: String,
+    /// How the pose was made.
+    pub pose_source: String,
+    /// Shape parameters (`shard::SHAPE_FIELDS` order).
+    pub shape: [f32; 9],
+    /// Shard holding it (None for a failed drape).
+    pub shard: Option<String>,
+    /// Whether the drape converged (failed drapes are left out of the shards).
+    pub ok: bool,
+    /// Why it failed.
+    pub failure: Option<String>,
+    /// The simulator's report (`sim::cloth::DrapeReport` as JSON).
+    pub report: serde_json::Value,
+    /// Time of the DQS warp (s).
+    pub warp_seconds: f64,
+    /// Time of the whole sample: warp and drape (s, one thread).
+    pub seconds: f64,
+}
+
+/// One shard.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShardRecord {
+    /// File name.
+    pub file: String,
+    /// Split.
+    pub split: Split,
+    /// Rows (converged samples).
+    pub rows: usize,
+    /// Size (bytes).
+    pub bytes: u64,
+    /// sha256 of the file.
+    pub sha256: String,
+    /// Every sample planned into the shard, failed ones included.
+    pub samples: Vec<SampleRecord>,
+}
+
+/// The manifest of a dataset or of one part of it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// [`MANIFEST_FORMAT`].
+    pub format: String,
+    /// Dataset name.
+    pub name: String,
+    /// drape's version.
+    pub program_version: String,
+    /// Git revision of the program.
+    pub git_revision: String,
+    /// sha256 of the resolved config's JSON.
+    pub config_sha256: String,
+    /// The resolved config.
+    pub config: serde_json::Value,
+    /// Part (0-based) of `parts`; a merged or whole dataset is part 0 of 1.
+    pub part: u32,
+    /// Parts.
+    pub parts: u32,
+    /// sha256 of `static.safetensors`.
+    pub static_sha256: String,
+    /// Shards, in plan order.
+    pub shards: Vec<ShardRecord>,
+}
+
+/// Failure counts of a group of samples.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Tally {
+    /// Samples.
+    pub samples: usize,
+    /// Failed drapes.
+    pub failed: usize,
+}
+
+impl Tally {
+    /// Share failed.
+    pub fn rate(&self) -> f64 {
+        if self.samples == 0 {
+            0.0
+        } else {
+            self.failed as f64 / self.samples as f64
+        }
+    }
+}
+
+impl Manifest {
+    /// A manifest of finished shards.
+    pub fn new(
+        config: &DatasetConfig,
+        opts: GenOptions,
+        static_sha256: String,
+        shards: Vec<ShardRecord>,
+    ) -> Self {
+        Self {
+            format: MANIFEST_FORMAT.into(),
+            name: config.name.clone(),
+            program_version: env!("CARGO_PKG_VERSION").into(),
+            git_revision: GIT_REVISION.into(),
+            config_sha256: config.hash(),
+            config: config.resolved_json(),
+            part: opts.part,
+            parts: opts.parts,
+            static_sha256,
+            shards,
+        }
+    }
+
+    /// The config back.
+    pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
+        serde_json::from_value(self.config.clone())
+            .map_err(|e| crate::DatasetError::Invalid(format!("manifest config: {e}")))
+    }
+
+    /// Every sample, in shard order.
+    pub fn samples(&self) -> impl Iterator<Item = &SampleRecord> {
+        self.shards.iter().flat_map(|s| s.samples.iter())
+    }
+
+    /// All samples.
+    pub fn tally(&self) -> Tally {
+        let mut t = Tally::default();
+        for s in self.samples() {
+            t.samples += 1;
+            t.failed += usize::from(!s.ok);
+        }
+        t
+    }
+
+    /// Per split.
+    pub fn tally_by_split(&self) -> BTreeMap<Split, Tally> {
+        let mut m: BTreeMap<Split, Tally> = BTreeMap::new();
+        for s in self.samples() {
+            let t = m.entry(s.split).or_default();
+            t.samples += 1;
+            t.failed += usize::from(!s.ok);
+        }
+        m
+    }
+
+    /// Per pose family.
+    pub fn tally_by_family(&self) -> BTreeMap<String, Tally> {
+        let mut m: BTreeMap<String, Tally> = BTreeMap::new();
+        for s in self.samples() {
+            let t = m.entry(s.family.clone()).or_default();
+            t.samples += 1;
+            t.failed += usize::from(!s.ok);
+        }
+        m
+    }
+
+    /// Failure reasons and their counts.
+    pub fn failure_reasons(&self) -> BTreeMap<String, usize> {
+        let mut m = BTreeMap::new();
+        for s in self.samples().filter(|s| !s.ok) {
+            let r = s.failure.clone().unwrap_or_else(|| "unknown".into());
+            let key = r.split(" (").next().unwrap_or(&r).to_string();
+            *m.entry(key).or_default() += 1;
+        }
+        m
+    }
+}

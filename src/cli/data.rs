@@ -1,0 +1,295 @@
+//! `drape gen` and `drape data info|verify|merge`.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use clap::{Args, Subcommand};
+use dataset::config::{DatasetConfig, Split};
+use dataset::generate::{self, Event, GenOptions};
+use dataset::inspect;
+use dataset::reader::Dataset;
+
+use super::Context;
+
+/// `drape gen`.
+#[derive(Debug, Args)]
+pub struct GenArgs {
+    /// Dataset config: a built-in name (tiny, small, cpu-reference, cpu-reference-sweater,
+    /// cpu-reference-dress, cpu-reference-jeans, paper) or a TOML file.
+    pub config: String,
+    /// Output folder (created; running again resumes).
+    #[arg(short, long, value_name = "DIR")]
+    pub output: PathBuf,
+    /// Generate only part I of N (0-based), e.g. `--shard 3/16` in a cluster job array;
+    /// join the parts with `drape data merge`.
+    #[arg(long, value_name = "I/N")]
+    pub shard: Option<String>,
+    /// Threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// `drape data`.
+#[derive(Debug, Args)]
+pub struct DataArgs {
+    #[command(subcommand)]
+    pub command: DataCommand,
+}
+
+/// Dataset tools.
+#[derive(Debug, Subcommand)]
+pub enum DataCommand {
+    /// Counts per split, failure rates, disk size, simulator report statistics, and how far
+    /// test poses are from training poses.
+    Info {
+        /// Dataset folder.
+        dir: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Check every shard: checksum, tensor shapes, finite values. Exits non-zero naming the
+    /// bad files.
+    Verify {
+        /// Dataset folder.
+        dir: PathBuf,
+    },
+    /// Join the parts made with `drape gen --shard I/N` (one or several folders) into one
+    /// dataset with a single manifest.json.
+    Merge {
+        /// Folders holding the parts.
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Output folder (may be the parts' folder itself).
+        #[arg(short, long, value_name = "DIR")]
+        output: PathBuf,
+    },
+}
+
+fn parse_part(s: &str) -> anyhow::Result<(u32, u32)> {
+    let bad = || anyhow::anyhow!("--shard {s:?}: expected I/N with 0 <= I < N, e.g. 0/4");
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let (i, n): (u32, u32) = (
+        i.trim().parse().map_err(|_| bad())?,
+        n.trim().parse().map_err(|_| bad())?,
+    );
+    if n == 0 || i >= n {
+        return Err(bad());
+    }
+    Ok((i, n))
+}
+
+/// Runs `drape gen`.
+pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
+    let config = DatasetConfig::load(&args.config)?;
+    let (part, parts) = match &args.shard {
+        Some(s) => parse_part(s)?,
+        None => (0, 1),
+    };
+    let threads = args.threads.unwrap_or(0);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    println!(
+        "{}: {} on {} bodies (train/val/test {}/{}/{}) x {} poses = {} drapes{}, {} threads -> {}",
+        config.name,
+        config.garment,
+        config.total_bodies(),
+        config.bodies.train,
+        config.bodies.val,
+        config.bodies.test,
+        config.poses_per_body,
+        config.total_samples(),
+        if parts > 1 {
+            format!(", part {part} of {parts}")
+        } else {
+            String::new()
+        },
+        pool.current_num_threads(),
+        args.output.display()
+    );
+    let bar = indicatif::ProgressBar::new(0).with_style(
+        indicatif::ProgressStyle::with_template(
+            "{prefix} [{bar:30}] {pos}/{len} drapes, {msg}, {per_sec}, {elapsed} (eta {eta})",
+        )?
+        .progress_chars("=> "),
+    );
+    bar.set_prefix("gen");
+    let failed = AtomicUsize::new(0);
+    let progress = |e: Event| match e {
+        Event::Start { todo, done } => {
+            bar.set_length(todo as u64);
+            bar.set_message("0 failed");
+            if done > 0 {
+                bar.println(format!(
+                    "resuming: {done} drapes already done, {todo} to go"
+                ));
+            }
+        }
+        Event::Drape { ok } => {
+            if !ok {
+                failed.fetch_add(1, Ordering::Relaxed);
+            }
+            bar.set_message(format!("{} failed", failed.load(Ordering::Relaxed)));
+            bar.inc(1);
+        }
+    };
+    let opts = GenOptions { part, parts };
+    let summary = pool.install(|| {
+        generate::generate(
+            &config,
+            &args.output,
+            &ctx.assets,
+            opts,
+            &mut |msg| println!("{msg}"),
+            &progress,
+        )
+    })?;
+    bar.finish();
+    let m = &summary.manifest;
+    let t = m.tally();
+    println!(
+        "{} drapes this run in {:.1} s ({:.0} drapes per hour); manifest: {}",
+        summary.draped_now,
+        summary.seconds,
+        if summary.seconds > 0.0 {
+            summary.draped_now as f64 * 3600.0 / summary.seconds
+        } else {
+            0.0
+        },
+        summary.manifest_path.display()
+    );
+    println!(
+        "failed: {} of {} ({:.1}%)",
+        t.failed,
+        t.samples,
+        100.0 * t.rate()
+    );
+    for (s, t) in m.tally_by_split() {
+        println!(
+            "  {:<8} {:>4} of {:>5} ({:.1}%)",
+            s.name(),
+            t.failed,
+            t.samples,
+            100.0 * t.rate()
+        );
+    }
+    for (f, t) in m.tally_by_family() {
+        println!(
+            "  {:<8} {:>4} of {:>5} ({:.1}%)",
+            f,
+            t.failed,
+            t.samples,
+            100.0 * t.rate()
+        );
+    }
+    for (r, k) in m.failure_reasons() {
+        println!("  reason: {r}: {k}");
+    }
+    if t.rate() > config.max_failure_rate {
+        anyhow::bail!(
+            "{:.1}% of drapes failed, above the config's max_failure_rate of {:.1}%",
+            100.0 * t.rate(),
+            100.0 * config.max_failure_rate
+        );
+    }
+    Ok(())
+}
+
+fn mb(b: u64) -> String {
+    format!("{:.1} MB", b as f64 / 1e6)
+}
+
+/// Runs `drape data`.
+pub fn data_run(args: DataArgs, _ctx: &Context) -> anyhow::Result<()> {
+    match args.command {
+        DataCommand::Info { dir, json } => {
+            let ds = Dataset::open(&dir)?;
+            let i = inspect::info(&ds)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&i)?);
+                return Ok(());
+            }
+            let m = &ds.manifest;
+            println!(
+                "{} ({}, {} vertices): program {} at {}, config sha256 {}",
+                i.name,
+                i.garment,
+                i.vertices,
+                m.program_version,
+                &m.git_revision[..m.git_revision.len().min(12)],
+                &m.config_sha256[..12]
+            );
+            for s in Split::ALL {
+                let t = i.failures_by_split.get(&s).copied().unwrap_or_default();
+                println!(
+                    "  {:<6} {:>6} samples, {} failed ({:.1}%)",
+                    s.name(),
+                    i.samples[&s],
+                    t.failed,
+                    100.0 * t.rate()
+                );
+            }
+            for (f, t) in &i.failures_by_family {
+                println!(
+                    "  family {f:<8} {} of {} failed ({:.1}%)",
+                    t.failed,
+                    t.samples,
+                    100.0 * t.rate()
+                );
+            }
+            for (r, k) in &i.failure_reasons {
+                println!("  failure: {r}: {k}");
+            }
+            println!("  on disk: {}", mb(i.bytes));
+            let st = |name: &str, s: &inspect::Stats, scale: f64, unit: &str| {
+                println!(
+                    "  {name:<28} mean {:.2}{unit}, p95 {:.2}{unit}, max {:.2}{unit}",
+                    s.mean * scale,
+                    s.p95 * scale,
+                    s.max * scale
+                )
+            };
+            st("strain p95 per drape", &i.strain_p95, 100.0, "%");
+            st("strain max per drape", &i.strain_max, 100.0, "%");
+            st(
+                "deepest penetration",
+                &i.penetration_max_depth,
+                1000.0,
+                " mm",
+            );
+            st("time per drape (1 thread)", &i.seconds, 1.0, " s");
+            st(
+                "test pose to nearest train",
+                &i.test_to_train_pose_deg,
+                1.0,
+                " deg",
+            );
+            Ok(())
+        }
+        DataCommand::Verify { dir } => {
+            let (rows, problems) = inspect::verify(&dir)?;
+            if problems.is_empty() {
+                println!("{}: every shard is intact ({rows} samples)", dir.display());
+                Ok(())
+            } else {
+                for p in &problems {
+                    eprintln!("{p}");
+                }
+                anyhow::bail!("{} bad shard(s) in {}", problems.len(), dir.display())
+            }
+        }
+        DataCommand::Merge { dirs, output } => {
+            let m = inspect::merge(&dirs, &output)?;
+            let t = m.tally();
+            println!(
+                "merged {} shards ({} samples, {} failed) into {}",
+                m.shards.len(),
+                t.samples,
+                t.failed,
+                output.join("manifest.json").display()
+            );
+            Ok(())
+        }
+    }
+}

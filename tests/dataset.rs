@@ -1,0 +1,308 @@
+//! `drape gen` and `drape data` end to end on the tiny config: determinism across thread
+//! counts, resume after interruption, parts and merge, verification of tampered shards,
+//! reading shards from Python.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use dataset::config::Split;
+use dataset::reader::Dataset;
+
+fn drape() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_drape"))
+}
+
+fn run(cmd: &mut Command) -> (bool, String) {
+    let out = cmd.output().unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+fn gen_into(dir: &Path, extra: &[&str]) -> String {
+    let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(dir).args(extra));
+    assert!(ok, "drape gen failed: {text}");
+    text
+}
+
+/// Shard files of a dataset folder, by name, with their bytes.
+fn shard_bytes(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".safetensors"))
+        .map(|n| {
+            let b = std::fs::read(dir.join(&n)).unwrap();
+            (n, b)
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// One uninterrupted run on all cores, shared by the tests.
+fn reference() -> &'static (tempfile::TempDir, PathBuf) {
+    static R: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    R.get_or_init(|| {
+        let t = tempfile::tempdir().unwrap();
+        let d = t.path().join("ref");
+        gen_into(&d, &[]);
+        (t, d)
+    })
+}
+
+#[test]
+fn a_dataset_has_its_splits_manifest_and_readable_samples() {
+    let (_, dir) = reference();
+    let ds = Dataset::open(dir).unwrap();
+    let m = &ds.manifest;
+    let c = m.dataset_config().unwrap();
+    assert_eq!(m.samples().count() as u64, c.total_samples());
+    assert_eq!(m.git_revision.len(), 40, "git revision recorded");
+    // Splits are by body, 2/1/1 bodies x 2 poses.
+    for (split, bodies) in [(Split::Train, 2), (Split::Val, 1), (Split::Test, 1)] {
+        let recs: Vec<_> = m.samples().filter(|s| s.split == split).collect();
+        assert_eq!(recs.len(), bodies * 2);
+        let samples: Vec<_> = ds.samples(split).map(Result::unwrap).collect();
+        assert_eq!(samples.len(), recs.iter().filter(|r| r.ok).count());
+        for s in &samples {
+            assert_eq!(s.row.id, s.record.id);
+            assert_eq!(s.row.body.len(), ds.statics.canonical_body.len());
+            assert_eq!(s.row.warped.len(), ds.statics.garment_vertices.len());
+            assert_eq!(s.row.draped.len(), s.row.warped.len());
+            // The drape moved away from the warp but stays near it (metres).
+            let d = s
+                .row
+                .warped
+                .iter()
+                .zip(&s.row.draped)
+                .map(|(a, b)| a.distance(*b))
+                .sum::<f32>()
+                / s.row.warped.len() as f32;
+            assert!(d > 1e-3 && d < 0.1, "mean |G - M| = {d} m");
+            assert!(s.record.report["strain"]["p95"].as_f64().unwrap() >= 0.0);
+        }
+    }
+    // No test body appears in training.
+    let bodies = |split| -> Vec<u64> {
+        m.samples()
+            .filter(|s| s.split == split)
+            .map(|s| s.body)
+            .collect()
+    };
+    assert!(
+        bodies(Split::Test)
+            .iter()
+            .all(|b| !bodies(Split::Train).contains(b))
+    );
+    let (ok, text) = run(drape().args(["data", "info"]).arg(dir));
+    assert!(ok, "{text}");
+    assert!(text.contains("test pose to nearest train"), "{text}");
+    let (ok, text) = run(drape().args(["data", "verify"]).arg(dir));
+    assert!(
+        ok && text.contains("every shard is intact (8 samples)"),
+        "{text}"
+    );
+}
+
+#[test]
+fn one_thread_gives_the_same_bytes_as_two() {
+    let (_, dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    gen_into(t.path(), &["--threads", "1"]);
+    assert_eq!(shard_bytes(t.path()), shard_bytes(dir));
+}
+
+#[test]
+fn an_interrupted_run_resumes_to_the_same_bytes() {
+    let (_, dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    let d = t.path().join("killed");
+    // Kill a run once its first drape is on disk.
+    let mut child = drape()
+        .args(["gen", "tiny", "-o"])
+        .arg(&d)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    loop {
+        let partials = std::fs::read_dir(d.join("partial"))
+            .map(|r| r.count())
+            .unwrap_or(0);
+        if partials > 0 || t0.elapsed().as_secs() > 120 {
+            break;
+        }
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    // Also a torn leftover: a truncated partial file is redone, not read as data.
+    std::fs::create_dir_all(d.join("partial")).unwrap();
+    std::fs::write(d.join("partial").join("00000007.safetensors"), b"\x10\x00").unwrap();
+    let text = gen_into(&d, &[]);
+    assert!(!d.join("manifest.json").exists() || text.contains("drapes this run"));
+    assert_eq!(shard_bytes(&d), shard_bytes(dir));
+    // Running again when all is done redoes nothing.
+    let text = gen_into(&d, &[]);
+    assert!(text.contains("0 drapes this run"), "{text}");
+}
+
+#[test]
+fn parts_merge_into_the_same_dataset() {
+    let (_, dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    let (a, b) = (t.path().join("a"), t.path().join("b"));
+    gen_into(&a, &["--shard", "0/2"]);
+    // A missing part is named.
+    let out = t.path().join("merged");
+    let (ok, text) = run(drape().args(["data", "merge"]).arg(&a).arg("-o").arg(&out));
+    assert!(!ok && text.contains("parts [1] of 2 are missing"), "{text}");
+    gen_into(&b, &["--shard", "1/2"]);
+    let (ok, text) = run(drape()
+        .args(["data", "merge"])
+        .arg(&a)
+        .arg(&b)
+        .arg("-o")
+        .arg(&out));
+    assert!(ok, "{text}");
+    assert_eq!(shard_bytes(&out), shard_bytes(dir));
+    let merged = Dataset::open(&out).unwrap().manifest;
+    let whole = Dataset::open(dir).unwrap().manifest;
+    let files = |m: &dataset::manifest::Manifest| -> Vec<(String, String)> {
+        m.shards
+            .iter()
+            .map(|s| (s.file.clone(), s.sha256.clone()))
+            .collect()
+    };
+    assert_eq!(files(&merged), files(&whole));
+    // Bad part specs are refused.
+    let (ok, text) = run(drape()
+        .args(["gen", "tiny", "--shard", "2/2", "-o"])
+        .arg(t.path().join("x")));
+    assert!(!ok && text.contains("--shard"), "{text}");
+}
+
+#[test]
+fn tampered_and_truncated_shards_are_named() {
+    let (_, dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    for (n, b) in shard_bytes(dir) {
+        std::fs::write(t.path().join(n), b).unwrap();
+    }
+    for f in ["manifest.json", "config.json"] {
+        std::fs::copy(dir.join(f), t.path().join(f)).unwrap();
+    }
+    let victim = t.path().join("train-00000.safetensors");
+    let mut bytes = std::fs::read(&victim).unwrap();
+    let k = bytes.len() - 100;
+    bytes[k] ^= 0x40;
+    std::fs::write(&victim, &bytes).unwrap();
+    let cut = t.path().join("test-00000.safetensors");
+    let len = std::fs::metadata(&cut).unwrap().len();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&cut)
+        .unwrap()
+        .set_len(len / 2)
+        .unwrap();
+    let (ok, text) = run(drape().args(["data", "verify"]).arg(t.path()));
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("train-00000.safetensors") && text.contains("test-00000.safetensors"),
+        "{text}"
+    );
+    assert!(text.contains("2 bad shard(s)"), "{text}");
+    // The reader refuses the altered shard instead of returning its numbers.
+    let ds = Dataset::open(t.path()).unwrap();
+    assert!(ds.samples(Split::Train).any(|s| s.is_err()));
+    assert!(ds.samples(Split::Val).all(|s| s.is_ok()));
+}
+
+#[test]
+fn bad_configs_are_refused_before_any_work() {
+    let t = tempfile::tempdir().unwrap();
+    let cfg = t.path().join("bad.toml");
+    std::fs::write(&cfg, "name = \"x\"\ngarment = \"tshirt\"\nresolution = 3000\nseed = 1\nposes_per_body = 0\n[bodies]\ntrain = 1\nval = 0\ntest = 0\n").unwrap();
+    let (ok, text) = run(drape()
+        .arg("gen")
+        .arg(&cfg)
+        .arg("-o")
+        .arg(t.path().join("o")));
+    assert!(!ok && text.contains("poses_per_body"), "{text}");
+    let (ok, text) = run(drape()
+        .args(["gen", "no-such-config", "-o"])
+        .arg(t.path().join("o")));
+    assert!(!ok && text.contains("built-in configs: tiny"), "{text}");
+}
+
+/// Python reads the shards with numpy through the safetensors package and sees what Rust
+/// wrote. `.ci/run` installs numpy and safetensors.
+#[test]
+fn python_reads_the_shards_rust_wrote() {
+    let (_, dir) = reference();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/drape_dataset.py");
+    let out = Command::new("python3")
+        .arg(&script)
+        .arg(dir)
+        .arg("train")
+        .output()
+        .expect("python3 runs");
+    assert!(
+        out.status.success(),
+        "python3 failed (needs `pip install numpy safetensors`): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ds = Dataset::open(dir).unwrap();
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let shards: Vec<_> = ds
+        .manifest
+        .shards
+        .iter()
+        .filter(|s| s.split == Split::Train)
+        .collect();
+    assert_eq!(lines.len(), shards.len());
+    for (line, shard) in lines.iter().zip(shards) {
+        assert_eq!(line["file"], shard.file.as_str());
+        let rows = ds.read_shard(&shard.file).unwrap();
+        let ids: Vec<u64> = rows.iter().map(|r| r.id).collect();
+        let py_ids: Vec<u64> = line["ids"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .collect();
+        assert_eq!(py_ids, ids);
+        let n = ds.statics.garment_vertices.len() as u64;
+        assert_eq!(
+            line["shapes"]["draped"],
+            serde_json::json!([ids.len() as u64, n, 3])
+        );
+        let sum = |f: &dyn Fn(&dataset::shard::Row) -> f64| rows.iter().map(f).sum::<f64>();
+        let vsum = |v: &[glam::Vec3]| v.iter().map(|p| (p.x + p.y + p.z) as f64).sum::<f64>();
+        for (name, rust) in [
+            ("body", sum(&|r| vsum(&r.body))),
+            ("warped", sum(&|r| vsum(&r.warped))),
+            ("draped", sum(&|r| vsum(&r.draped))),
+            ("shape", sum(&|r| r.shape.iter().map(|&x| x as f64).sum())),
+        ] {
+            let py = line["sums"][name].as_f64().unwrap();
+            assert!(
+                (py - rust).abs() <= 1e-6 * rust.abs().max(1.0),
+                "{name}: python {py}, rust {rust}"
+            );
+        }
+    }
+}
