@@ -20,11 +20,10 @@
 //! template on the canonical body), `garment_triangles` (U32 [F, 3]), `body_triangles` (U32
 //! [Fb, 3]) and `canonical_body` (F32 [Nb, 3]).
 
-use std::collections::HashMap;
 use std::path::Path;
 
 use glam::{Quat, Vec3};
-use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use safetensors::tensor::{Dtype, SafeTensors};
 use serde::{Deserialize, Serialize};
 
 use crate::DatasetError;
@@ -86,24 +85,9 @@ fn vecs(v: &[Vec3]) -> impl Iterator<Item = f32> + '_ {
     v.iter().flat_map(|p| p.to_array())
 }
 
-/// Serialises named tensors with one JSON metadata value under `drape` (a single key, so
-/// the bytes are deterministic).
-pub fn serialize(tensors: &[(&str, Dtype, Vec<usize>, Vec<u8>)], meta: &impl Serialize) -> Vec<u8> {
-    let views: Vec<(&str, TensorView<'_>)> = tensors
-        .iter()
-        .map(|(name, dtype, shape, data)| {
-            (
-                *name,
-                TensorView::new(*dtype, shape.clone(), data).expect("sizes match"),
-            )
-        })
-        .collect();
-    let mut info = HashMap::new();
-    info.insert(
-        "drape".to_string(),
-        serde_json::to_string(meta).expect("metadata serialises"),
-    );
-    safetensors::tensor::serialize(views, Some(info)).expect("tensors serialise")
+/// Serialises named tensors with the `drape` metadata (see `sim::io::safetensors_bytes`).
+pub fn serialize(tensors: &[sim::io::NamedTensor<'_>], meta: &impl Serialize) -> Vec<u8> {
+    sim::io::safetensors_bytes(tensors, meta)
 }
 
 /// Encodes rows of one split (all with the same vertex counts) into shard bytes.

@@ -122,3 +122,27 @@ mod tests {
         assert_eq!(fs::read(&b).unwrap(), b"22");
     }
 }
+
+/// A named tensor for [`safetensors_bytes`]: name, dtype, shape, little-endian data.
+pub type NamedTensor<'a> = (&'a str, safetensors::Dtype, Vec<usize>, Vec<u8>);
+
+/// Serialises tensors with one metadata entry, `drape`, holding `meta` as JSON. One key
+/// keeps the bytes deterministic (safetensors writes its metadata map in hash order).
+pub fn safetensors_bytes(tensors: &[NamedTensor<'_>], meta: &impl serde::Serialize) -> Vec<u8> {
+    let views: Vec<(&str, safetensors::tensor::TensorView<'_>)> = tensors
+        .iter()
+        .map(|(name, dtype, shape, data)| {
+            (
+                *name,
+                safetensors::tensor::TensorView::new(*dtype, shape.clone(), data)
+                    .expect("sizes match"),
+            )
+        })
+        .collect();
+    let mut info = std::collections::HashMap::new();
+    info.insert(
+        "drape".to_string(),
+        serde_json::to_string(meta).expect("metadata serialises"),
+    );
+    safetensors::tensor::serialize(views, Some(info)).expect("tensors serialise")
+}

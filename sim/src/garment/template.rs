@@ -6,11 +6,10 @@
 //! `skin_weights` f32 [V, 4], `bind_triangle` u32 [V] (canonical body triangle),
 //! `bind_bary` f32 [V, 3]. Metadata key `drape`: JSON [`TemplateMeta`].
 
-use std::collections::HashMap;
 use std::path::Path;
 
 use glam::Vec3;
-use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use safetensors::tensor::{Dtype, SafeTensors};
 use serde::{Deserialize, Serialize};
 
 use super::GarmentError;
@@ -79,7 +78,7 @@ impl Template {
     /// Safetensors bytes.
     pub fn encode(&self) -> Vec<u8> {
         let (v, f) = (self.mesh.vertices.len(), self.mesh.triangles.len());
-        let buffers: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = vec![
+        let buffers: Vec<crate::io::NamedTensor<'_>> = vec![
             (
                 "vertices",
                 Dtype::F32,
@@ -117,21 +116,7 @@ impl Template {
                 f32s(self.bindings.iter().flat_map(|b| b.bary)),
             ),
         ];
-        let views: Vec<(&str, TensorView<'_>)> = buffers
-            .iter()
-            .map(|(name, dtype, shape, data)| {
-                (
-                    *name,
-                    TensorView::new(*dtype, shape.clone(), data).expect("sizes match"),
-                )
-            })
-            .collect();
-        let mut info = HashMap::new();
-        info.insert(
-            "drape".to_string(),
-            serde_json::to_string(&self.meta).expect("metadata serialises"),
-        );
-        safetensors::tensor::serialize(views, Some(info)).expect("tensors serialise")
+        crate::io::safetensors_bytes(&buffers, &self.meta)
     }
 
     /// Reads a template file, checking every tensor's type and shape and every index.
