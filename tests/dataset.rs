@@ -66,12 +66,12 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     assert_eq!(m.git_revision.len(), 40, "git revision recorded");
     // Splits are by body, 2/1/1 bodies x 2 poses.
     for (split, bodies) in [(Split::Train, 2), (Split::Val, 1), (Split::Test, 1)] {
-        let recs: Vec<_> = m.samples().filter(|s| s.split == split).collect();
+        let recs: Vec<_> = m.samples().filter(|s| s.plan.split == split).collect();
         assert_eq!(recs.len(), bodies * 2);
         let samples: Vec<_> = ds.samples(split).map(Result::unwrap).collect();
         assert_eq!(samples.len(), recs.iter().filter(|r| r.ok).count());
         for s in &samples {
-            assert_eq!(s.row.id, s.record.id);
+            assert_eq!(s.row.id, s.record.plan.id);
             assert_eq!(s.row.body.len(), ds.statics.canonical_body.len());
             assert_eq!(s.row.warped.len(), ds.statics.garment_vertices.len());
             assert_eq!(s.row.draped.len(), s.row.warped.len());
@@ -91,8 +91,8 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     // No test body appears in training.
     let bodies = |split| -> Vec<u64> {
         m.samples()
-            .filter(|s| s.split == split)
-            .map(|s| s.body)
+            .filter(|s| s.plan.split == split)
+            .map(|s| s.plan.body)
             .collect()
     };
     assert!(

@@ -23,8 +23,6 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use glam::Vec3;
-use safetensors::tensor::Dtype;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use sim::body::{BodyModel, PoseLibrary, ShapeParams};
@@ -36,7 +34,9 @@ use crate::DatasetError;
 use crate::config::{DatasetConfig, hex};
 use crate::manifest::{Manifest, SampleRecord, ShardRecord};
 use crate::plan::{Poser, ShardPlan, part, sample_plan, shards};
-use crate::shard::{Row, STATIC_FILE, Static, encode_shard, serialize};
+use crate::shard::{
+    Reader, Row, STATIC_FILE, Static, encode_shard, read_rows, row_tensors, serialize,
+};
 
 /// Options of one generation run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -150,16 +150,10 @@ impl Job<'_> {
         );
         let ok = d.report.converged;
         let record = SampleRecord {
-            id,
-            split: plan.split,
-            body: plan.body,
-            pose_index: plan.pose_index,
-            shape_seed: plan.shape_seed,
-            pose_seed: plan.pose_seed,
+            plan,
             family: drawn.family.clone(),
             pose_source: drawn.pose_source.clone(),
             shape: drawn.shape.named().map(|(_, v)| v),
-            shard: None,
             ok,
             failure: d.report.failure.map(|f| f.to_string()),
             report: serde_json::to_value(&d.report).expect("reports serialise"),
@@ -179,6 +173,9 @@ impl Job<'_> {
     }
 }
 
+/// Body vertices, garment vertices, bones: the sizes every row has.
+type Dims = (usize, usize, usize);
+
 fn partial_path(dir: &Path, id: u64) -> PathBuf {
     dir.join("partial").join(format!("{id:08}.safetensors"))
 }
@@ -188,33 +185,12 @@ fn record_path(dir: &Path, shard: &str) -> PathBuf {
         .join(shard.replace(".safetensors", ".json"))
 }
 
-fn encode_partial(row: Option<&Row>, record: &SampleRecord) -> Vec<u8> {
-    let f32s = |v: &[Vec3]| -> Vec<u8> {
-        v.iter()
-            .flat_map(|p| p.to_array())
-            .flat_map(f32::to_le_bytes)
-            .collect()
-    };
-    let tensors: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = match row {
-        None => Vec::new(),
-        Some(r) => vec![
-            ("body", Dtype::F32, vec![r.body.len(), 3], f32s(&r.body)),
-            (
-                "warped",
-                Dtype::F32,
-                vec![r.warped.len(), 3],
-                f32s(&r.warped),
-            ),
-            (
-                "draped",
-                Dtype::F32,
-                vec![r.draped.len(), 3],
-                f32s(&r.draped),
-            ),
-        ],
-    };
+/// A finished drape: its row (none if it failed) as the shard tensors, its record as
+/// metadata.
+fn encode_partial(row: Option<Row>, record: &SampleRecord, dims: Dims) -> Vec<u8> {
+    let (nb, n, bones) = dims;
     serialize(
-        &tensors,
+        &row_tensors(row.as_slice(), nb, n, bones),
         &PartialMeta {
             record: record.clone(),
         },
@@ -224,19 +200,17 @@ fn encode_partial(row: Option<&Row>, record: &SampleRecord) -> Vec<u8> {
 fn decode_partial(
     path: &Path,
     bytes: &[u8],
-    nb: usize,
-    n: usize,
-) -> Result<(Option<[Vec<Vec3>; 3]>, SampleRecord), DatasetError> {
-    let meta: PartialMeta = crate::shard::Reader::meta(bytes, path)?;
-    if !meta.record.ok {
-        return Ok((None, meta.record));
-    }
-    let r = crate::shard::Reader::new(path, bytes)?;
-    let v3 = |d: Vec<f32>| d.chunks_exact(3).map(Vec3::from_slice).collect::<Vec<_>>();
-    let body = v3(r.f32s("body", &[Some(nb), Some(3)])?);
-    let warped = v3(r.f32s("warped", &[Some(n), Some(3)])?);
-    let draped = v3(r.f32s("draped", &[Some(n), Some(3)])?);
-    Ok((Some([body, warped, draped]), meta.record))
+    dims: Dims,
+) -> Result<(Option<Row>, SampleRecord), DatasetError> {
+    let (nb, n, bones) = dims;
+    let meta: PartialMeta = Reader::meta(bytes, path)?;
+    let ids: &[u64] = if meta.record.ok {
+        &[meta.record.plan.id]
+    } else {
+        &[]
+    };
+    let mut rows = read_rows(&Reader::new(path, bytes)?, ids, nb, n, bones)?;
+    Ok((rows.pop(), meta.record))
 }
 
 /// Loads the body model, the pose library and the garment template for a config.
@@ -258,14 +232,7 @@ pub fn load_inputs(
 
 /// Assembles a shard whose samples are all finished: writes the shard, then its record,
 /// then removes the partial files.
-fn assemble(
-    dir: &Path,
-    shard: &ShardPlan,
-    nb: usize,
-    n: usize,
-    bones: usize,
-    plan_rows: &dyn Fn(u64) -> Result<Row, DatasetError>,
-) -> Result<ShardRecord, DatasetError> {
+fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, DatasetError> {
     let mut rows = Vec::new();
     let mut samples = Vec::new();
     for &id in &shard.samples {
@@ -274,17 +241,11 @@ fn assemble(
             path: p.clone(),
             source: e,
         })?;
-        let (arrays, mut record) = decode_partial(&p, &bytes, nb, n)?;
-        if let Some([body, warped, draped]) = arrays {
-            let mut row = plan_rows(id)?;
-            row.body = body;
-            row.warped = warped;
-            row.draped = draped;
-            rows.push(row);
-            record.shard = Some(shard.file.clone());
-        }
+        let (row, record) = decode_partial(&p, &bytes, dims)?;
+        rows.extend(row);
         samples.push(record);
     }
+    let (nb, n, bones) = dims;
     let bytes = encode_shard(shard.split.name(), &rows, nb, n, bones);
     write_atomic(&dir.join(&shard.file), &bytes)?;
     let record = ShardRecord {
@@ -351,7 +312,7 @@ pub fn generate(
     let canonical = model.shape(&ShapeParams::default())?;
     let cloth = ClothModel::new(&template.mesh, &config.sim, &[])?;
     let poser = Poser::new(config, &model, library)?;
-    let (nb, n, bones) = (
+    let dims: Dims = (
         canonical.vertices.len(),
         template.mesh.vertices.len(),
         model.skeleton.len(),
@@ -362,7 +323,7 @@ pub fn generate(
         garment_triangles: template.mesh.triangles.clone(),
         body_triangles: model.triangles.clone(),
         canonical_body: canonical.vertices.clone(),
-        bones,
+        bones: dims.2,
     };
     let static_bytes = st.encode();
     let static_path = dir.join(STATIC_FILE);
@@ -389,7 +350,7 @@ pub fn generate(
             let p = partial_path(dir, id);
             let good = std::fs::read(&p)
                 .ok()
-                .is_some_and(|b| decode_partial(&p, &b, nb, n).is_ok());
+                .is_some_and(|b| decode_partial(&p, &b, dims).is_ok());
             if good {
                 resumed += 1;
             } else {
@@ -410,19 +371,6 @@ pub fn generate(
         poser: &poser,
         canonical,
     };
-    let rebuild_row = |id: u64| -> Result<Row, DatasetError> {
-        let plan = sample_plan(config, id);
-        let d = poser.draw(config, &model, &plan)?;
-        Ok(Row {
-            id,
-            body: Vec::new(),
-            warped: Vec::new(),
-            draped: Vec::new(),
-            shape: d.shape.named().map(|(_, v)| v),
-            pose: d.pose.rotations,
-            root: d.pose.root_translation,
-        })
-    };
     // Shards still missing samples, with the count missing.
     let shard_of: BTreeMap<u64, usize> = mine
         .iter()
@@ -439,7 +387,7 @@ pub fn generate(
         if done_records.lock().expect("lock").contains_key(&s.file) {
             return Ok(());
         }
-        let r = assemble(dir, s, nb, n, bones, &rebuild_row)?;
+        let r = assemble(dir, s, dims)?;
         done_records.lock().expect("lock").insert(s.file.clone(), r);
         Ok(())
     };
@@ -450,10 +398,7 @@ pub fn generate(
         .try_for_each(|&id| -> Result<(), DatasetError> {
             let (row, record) = job.run(id)?;
             progress(Event::Drape { ok: record.ok });
-            write_atomic(
-                &partial_path(dir, id),
-                &encode_partial(row.as_ref(), &record),
-            )?;
+            write_atomic(&partial_path(dir, id), &encode_partial(row, &record, dims))?;
             let k = shard_of[&id];
             if missing[k].fetch_sub(1, Ordering::AcqRel) == 1 {
                 assemble_if_done(k)?;

@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{DatasetConfig, Split};
 use crate::generate::GenOptions;
+use crate::plan::SamplePlan;
 
 /// Format tag of manifests.
 pub const MANIFEST_FORMAT: &str = "drape-dataset/1";
@@ -17,26 +18,15 @@ pub const GIT_REVISION: &str = env!("DRAPE_GIT_REVISION");
 /// One sample.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SampleRecord {
-    /// Sample id.
-    pub id: u64,
-    /// Split.
-    pub split: Split,
-    /// Body number.
-    pub body: u64,
-    /// Pose number of the body.
-    pub pose_index: u32,
-    /// Seed of the shape.
-    pub shape_seed: u64,
-    /// Seed of the pose.
-    pub pose_seed: u64,
+    /// Id, split, body, pose number and seeds (flattened into the record's JSON).
+    #[serde(flatten)]
+    pub plan: SamplePlan,
     /// Pose family.
     pub family: String,
     /// How the pose was made.
     pub pose_source: String,
     /// Shape parameters (`shard::SHAPE_FIELDS` order).
     pub shape: [f32; 9],
-    /// Shard holding it (None for a failed drape).
-    pub shard: Option<String>,
     /// Whether the drape converged (failed drapes are left out of the shards).
     pub ok: bool,
     /// Why it failed.
@@ -158,7 +148,7 @@ impl Manifest {
     pub fn tally_by_split(&self) -> BTreeMap<Split, Tally> {
         let mut m: BTreeMap<Split, Tally> = BTreeMap::new();
         for s in self.samples() {
-            let t = m.entry(s.split).or_default();
+            let t = m.entry(s.plan.split).or_default();
             t.samples += 1;
             t.failed += usize::from(!s.ok);
         }

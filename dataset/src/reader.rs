@@ -105,7 +105,12 @@ impl Dataset {
             s.garment_vertices.len(),
             s.bones,
         )?;
-        let expect: Vec<u64> = rec.samples.iter().filter(|r| r.ok).map(|r| r.id).collect();
+        let expect: Vec<u64> = rec
+            .samples
+            .iter()
+            .filter(|r| r.ok)
+            .map(|r| r.plan.id)
+            .collect();
         if meta.ids != expect || meta.split != rec.split.name() {
             return Err(DatasetError::Corrupt {
                 path,
@@ -141,7 +146,7 @@ impl Dataset {
     pub fn count(&self, split: Split) -> usize {
         self.manifest
             .samples()
-            .filter(|s| s.split == split && s.ok)
+            .filter(|s| s.plan.split == split && s.ok)
             .count()
     }
 }

@@ -85,15 +85,25 @@ fn vecs(v: &[Vec3]) -> impl Iterator<Item = f32> + '_ {
     v.iter().flat_map(|p| p.to_array())
 }
 
+fn vec3s(d: &[f32]) -> Vec<Vec3> {
+    d.chunks_exact(3).map(Vec3::from_slice).collect()
+}
+
 /// Serialises named tensors with the `drape` metadata (see `sim::io::safetensors_bytes`).
 pub fn serialize(tensors: &[sim::io::NamedTensor<'_>], meta: &impl Serialize) -> Vec<u8> {
     sim::io::safetensors_bytes(tensors, meta)
 }
 
-/// Encodes rows of one split (all with the same vertex counts) into shard bytes.
-pub fn encode_shard(split: &str, rows: &[Row], nb: usize, n: usize, bones: usize) -> Vec<u8> {
+/// The tensors of the table above for `rows` (all with the same vertex counts): a shard's,
+/// and a single finished drape's while its shard is not yet assembled.
+pub(crate) fn row_tensors(
+    rows: &[Row],
+    nb: usize,
+    n: usize,
+    bones: usize,
+) -> Vec<sim::io::NamedTensor<'static>> {
     let k = rows.len();
-    let tensors = vec![
+    vec![
         (
             "id",
             Dtype::I64,
@@ -141,13 +151,56 @@ pub fn encode_shard(split: &str, rows: &[Row], nb: usize, n: usize, bones: usize
             vec![k, 3],
             f32s(rows.iter().flat_map(|r| r.root.to_array())),
         ),
-    ];
+    ]
+}
+
+/// Encodes rows of one split (all with the same vertex counts) into shard bytes.
+pub fn encode_shard(split: &str, rows: &[Row], nb: usize, n: usize, bones: usize) -> Vec<u8> {
     let meta = ShardMeta {
         format: SHARD_FORMAT.into(),
         split: split.into(),
         ids: rows.iter().map(|r| r.id).collect(),
     };
-    serialize(&tensors, &meta)
+    serialize(&row_tensors(rows, nb, n, bones), &meta)
+}
+
+/// Reads the rows written by [`row_tensors`], checking that they are `ids`, in order.
+pub(crate) fn read_rows(
+    r: &Reader<'_>,
+    ids: &[u64],
+    nb: usize,
+    n: usize,
+    bones: usize,
+) -> Result<Vec<Row>, DatasetError> {
+    let k = ids.len();
+    let (_, idb) = r.raw("id", Dtype::I64, &[Some(k)])?;
+    let stored: Vec<u64> = idb
+        .chunks_exact(8)
+        .map(|c| i64::from_le_bytes(c.try_into().expect("8 bytes")) as u64)
+        .collect();
+    if stored != ids {
+        return Err(r.bad("tensor `id` disagrees with the metadata's ids".into()));
+    }
+    let body = r.f32s("body", &[Some(k), Some(nb), Some(3)])?;
+    let warped = r.f32s("warped", &[Some(k), Some(n), Some(3)])?;
+    let draped = r.f32s("draped", &[Some(k), Some(n), Some(3)])?;
+    let shape = r.f32s("shape", &[Some(k), Some(9)])?;
+    let pose = r.f32s("pose", &[Some(k), Some(bones), Some(4)])?;
+    let root = r.f32s("root", &[Some(k), Some(3)])?;
+    Ok((0..k)
+        .map(|i| Row {
+            id: ids[i],
+            body: vec3s(&body[i * nb * 3..(i + 1) * nb * 3]),
+            warped: vec3s(&warped[i * n * 3..(i + 1) * n * 3]),
+            draped: vec3s(&draped[i * n * 3..(i + 1) * n * 3]),
+            shape: shape[i * 9..(i + 1) * 9].try_into().expect("9"),
+            pose: pose[i * bones * 4..(i + 1) * bones * 4]
+                .chunks_exact(4)
+                .map(Quat::from_slice)
+                .collect(),
+            root: Vec3::from_slice(&root[i * 3..i * 3 + 3]),
+        })
+        .collect())
 }
 
 /// Reads tensors of a safetensors file with shape checks, naming the file in every error.
@@ -262,36 +315,7 @@ pub fn decode_shard(
             meta.format
         )));
     }
-    let k = meta.ids.len();
-    let (_, idb) = r.raw("id", Dtype::I64, &[Some(k)])?;
-    let ids: Vec<u64> = idb
-        .chunks_exact(8)
-        .map(|c| i64::from_le_bytes(c.try_into().expect("8 bytes")) as u64)
-        .collect();
-    if ids != meta.ids {
-        return Err(r.bad("tensor `id` disagrees with the metadata's ids".into()));
-    }
-    let body = r.f32s("body", &[Some(k), Some(nb), Some(3)])?;
-    let warped = r.f32s("warped", &[Some(k), Some(n), Some(3)])?;
-    let draped = r.f32s("draped", &[Some(k), Some(n), Some(3)])?;
-    let shape = r.f32s("shape", &[Some(k), Some(9)])?;
-    let pose = r.f32s("pose", &[Some(k), Some(bones), Some(4)])?;
-    let root = r.f32s("root", &[Some(k), Some(3)])?;
-    let v3 = |d: &[f32]| d.chunks_exact(3).map(Vec3::from_slice).collect::<Vec<_>>();
-    let rows = (0..k)
-        .map(|i| Row {
-            id: ids[i],
-            body: v3(&body[i * nb * 3..(i + 1) * nb * 3]),
-            warped: v3(&warped[i * n * 3..(i + 1) * n * 3]),
-            draped: v3(&draped[i * n * 3..(i + 1) * n * 3]),
-            shape: shape[i * 9..(i + 1) * 9].try_into().expect("9"),
-            pose: pose[i * bones * 4..(i + 1) * bones * 4]
-                .chunks_exact(4)
-                .map(Quat::from_slice)
-                .collect(),
-            root: Vec3::from_slice(&root[i * 3..i * 3 + 3]),
-        })
-        .collect();
+    let rows = read_rows(&r, &meta.ids, nb, n, bones)?;
     Ok((meta, rows))
 }
 
@@ -367,14 +391,13 @@ impl Static {
                 meta.format
             )));
         }
-        let v3 = |d: Vec<f32>| d.chunks_exact(3).map(Vec3::from_slice).collect::<Vec<_>>();
         let t3 = |d: Vec<u32>| {
             d.chunks_exact(3)
                 .map(|c| [c[0], c[1], c[2]])
                 .collect::<Vec<_>>()
         };
-        let garment_vertices = v3(r.f32s("garment_vertices", &[None, Some(3)])?);
-        let canonical_body = v3(r.f32s("canonical_body", &[None, Some(3)])?);
+        let garment_vertices = vec3s(&r.f32s("garment_vertices", &[None, Some(3)])?);
+        let canonical_body = vec3s(&r.f32s("canonical_body", &[None, Some(3)])?);
         let garment_triangles = t3(r.u32s("garment_triangles", &[None, Some(3)])?);
         let body_triangles = t3(r.u32s("body_triangles", &[None, Some(3)])?);
         if garment_triangles

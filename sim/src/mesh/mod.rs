@@ -28,6 +28,18 @@ pub struct TriMesh {
 }
 
 impl TriMesh {
+    /// Signed enclosed volume (m^3) by the divergence theorem: positive for a closed mesh
+    /// whose triangles wind counter-clockwise seen from outside.
+    pub fn signed_volume(&self) -> f32 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| self.vertices[i as usize]);
+                a.dot(b.cross(c)) / 6.0
+            })
+            .sum()
+    }
+
     /// A mesh from positions and triangles.
     pub fn new(vertices: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Self {
         Self {

@@ -160,16 +160,6 @@ fn append_welded(mesh: &mut TriMesh, part: &TriMesh) {
 mod tests {
     use super::*;
 
-    fn signed_volume(m: &TriMesh) -> f32 {
-        m.triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| m.vertices[i as usize]);
-                a.dot(b.cross(c)) / 6.0
-            })
-            .sum()
-    }
-
     fn closed(m: &TriMesh) -> bool {
         let mut edges = std::collections::HashMap::new();
         for t in &m.triangles {
@@ -186,12 +176,12 @@ mod tests {
     fn closed_primitives_enclose_their_volume() {
         let s = uv_sphere(Vec3::ZERO, 1.0, 64, 32);
         assert!(closed(&s));
-        assert!((signed_volume(&s) - 4.0 / 3.0 * std::f32::consts::PI).abs() < 0.02);
+        assert!((s.signed_volume() - 4.0 / 3.0 * std::f32::consts::PI).abs() < 0.02);
         let b = cuboid(Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.5, 1.0, 1.5), 3);
         assert!(closed(&b));
-        assert!((signed_volume(&b) - 6.0).abs() < 1e-4);
+        assert!((b.signed_volume() - 6.0).abs() < 1e-4);
         let c = cylinder(Vec3::ZERO, 1.0, 2.0, 64, 4);
         assert!(closed(&c));
-        assert!((signed_volume(&c) - 2.0 * std::f32::consts::PI).abs() < 0.02);
+        assert!((c.signed_volume() - 2.0 * std::f32::consts::PI).abs() < 0.02);
     }
 }

@@ -1557,16 +1557,6 @@ mod tests {
         }
     }
 
-    fn signed_volume(m: &TriMesh) -> f32 {
-        m.triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| m.vertices[i as usize]);
-                a.dot(b.cross(c)) / 6.0
-            })
-            .sum()
-    }
-
     fn square() -> TriMesh {
         grid(Vec3::ZERO, Vec3::X, Vec3::Z * -1.0, 100, 5)
     }
@@ -1664,7 +1654,7 @@ mod tests {
         // The centre stays and the surface keeps facing outwards.
         let centroid = d.vertices.iter().sum::<Vec3>() / d.vertices.len() as f32;
         assert!(centroid.length() < 1e-4, "{centroid}");
-        assert!(signed_volume(&d) > 0.0);
+        assert!(d.signed_volume() > 0.0);
         // Boundary rules on a flat 3 x 3 grid: everything stays in the plane; new boundary
         // vertices are edge midpoints and old ones 3/4 v + 1/8 (neighbours), so the border
         // stays straight and only the four corners are cut, to (1/24, 1/24) from the corner.
