@@ -1,7 +1,50 @@
-//! `learn`: the GarNet family of networks (GarNet++ paper) in burn.
+//! `learn`: the GarNet family of networks (GarNet++ paper) in burn: models, losses,
+//! training with checkpoints, inference.
 //!
-//! This crate will hold the models (GarNet-Naive, -Global, -Local, -Global-Params), their
-//! losses, training with checkpoints and inference, generic over the burn backend. It is
-//! empty until the dataset it trains on exists; see ARCHITECTURE.md for the plan of the
-//! workspace.
+//! - [`model`]: **the GarNet forward pass** ([`model::GarNet::forward`]) and its blocks.
+//! - [`loss`]: L_vert, L_pen, L_norm, L_bend, the curvature losses.
+//! - [`data`]: dataset rows to network inputs (k-NN with kiddo).
+//! - [`topology`]: the garment's mesh graph.
+//! - [`config`]: model and training configs (`configs/train/*.toml`).
 #![warn(missing_docs)]
+
+pub mod bench;
+pub mod config;
+pub mod data;
+pub mod loss;
+pub mod model;
+pub mod run;
+pub mod topology;
+pub mod train;
+
+use std::path::PathBuf;
+
+/// Errors of training and inference.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A config with unknown fields or values out of range.
+    #[error("bad config: {0}")]
+    Config(String),
+    /// A run folder that does not fit what it is used with.
+    #[error("{0}")]
+    Mismatch(String),
+    /// The dataset could not be read.
+    #[error(transparent)]
+    Dataset(#[from] dataset::DatasetError),
+    /// A checkpoint could not be saved or loaded.
+    #[error("{path}: {reason}")]
+    Checkpoint {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+}

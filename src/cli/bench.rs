@@ -37,6 +37,25 @@ enum BenchCommand {
         #[arg(long, value_name = "FILE.toml")]
         config: Option<std::path::PathBuf>,
     },
+    /// Training throughput of a GarNet config: samples per second of whole training steps
+    /// and seconds per stage (inputs, forward and losses, backward, Adam), peak memory.
+    Train {
+        /// Training config (configs/train/*.toml).
+        #[arg(value_name = "CONFIG.toml")]
+        config: std::path::PathBuf,
+        /// Dataset folder (default: the config's `data`).
+        #[arg(long, value_name = "DIR")]
+        data: Option<std::path::PathBuf>,
+        /// Timed batches after one warm-up batch.
+        #[arg(long, default_value_t = 5)]
+        batches: usize,
+        /// Override the config's batch size.
+        #[arg(long)]
+        batch_size: Option<usize>,
+        /// Override the variant: naive, global, local, global-params.
+        #[arg(long)]
+        variant: Option<String>,
+    },
 }
 
 /// Peak resident memory of this process (MB), from /proc where there is one.
@@ -49,13 +68,22 @@ fn peak_memory_mb() -> Option<f64> {
 
 /// Runs `drape bench`.
 pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
-    let BenchCommand::Sim {
-        garment,
-        resolution,
-        poses,
-        seed,
-        config,
-    } = args.command;
+    let (garment, resolution, poses, seed, config) = match args.command {
+        BenchCommand::Sim {
+            garment,
+            resolution,
+            poses,
+            seed,
+            config,
+        } => (garment, resolution, poses, seed, config),
+        BenchCommand::Train {
+            config,
+            data,
+            batches,
+            batch_size,
+            variant,
+        } => return bench_train(config, data, batches, batch_size, variant),
+    };
     let config = match &config {
         Some(p) => SimConfig::load(p)?,
         None => SimConfig::default(),
@@ -147,6 +175,42 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     );
     if let Some(mb) = peak_memory_mb() {
         println!("peak memory of this process: {mb:.0} MB");
+    }
+    Ok(())
+}
+
+/// `drape bench train`.
+fn bench_train(
+    config: std::path::PathBuf,
+    data: Option<std::path::PathBuf>,
+    batches: usize,
+    batch_size: Option<usize>,
+    variant: Option<String>,
+) -> anyhow::Result<()> {
+    let mut c = learn::config::TrainConfig::load(&config)?;
+    if let Some(b) = batch_size {
+        c.batch_size = b;
+    }
+    if let Some(v) = variant {
+        c.model.variant =
+            serde_json::from_value(serde_json::Value::String(v.clone())).map_err(|_| {
+                anyhow::anyhow!("unknown variant {v:?}: naive, global, local, global-params")
+            })?;
+    }
+    c.validate()?;
+    let data = data.unwrap_or_else(|| c.data.clone());
+    let r = learn::bench::train_rate(&c, &data, batches)?;
+    println!(
+        "{} on {} vertices, {} body points, {} parameters, batch {}, {} timed batches",
+        r.variant, r.vertices, r.body_points, r.parameters, r.batch_size, r.batches
+    );
+    println!("  training rate: {:.2} samples/s", r.samples_per_second);
+    println!(
+        "  per batch: inputs {:.3} s, forward+losses {:.3} s, backward {:.3} s, Adam {:.3} s",
+        r.prepare, r.forward, r.backward, r.step
+    );
+    if let Some(mb) = peak_memory_mb() {
+        println!("  peak memory: {mb:.0} MB");
     }
     Ok(())
 }

@@ -4,6 +4,7 @@ mod bench;
 mod body;
 mod data;
 mod garment;
+mod learn;
 mod pose_spec;
 mod simulate;
 
@@ -46,6 +47,9 @@ pub enum Command {
     Gen(data::GenArgs),
     /// Inspect, verify and merge datasets made by `drape gen`.
     Data(data::DataArgs),
+    /// Train a GarNet network (Naive, Global, Local, Global-Params) on a dataset; resumes;
+    /// `--init` fine-tunes from another run.
+    Train(learn::TrainArgs),
 }
 
 /// Options every command shares.
@@ -73,5 +77,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args, &ctx),
         Command::Gen(args) => data::gen_run(args, &ctx),
         Command::Data(args) => data::data_run(args, &ctx),
+        Command::Train(args) => learn::run(args),
     }
 }

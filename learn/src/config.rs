@@ -1,0 +1,333 @@
+//! Model and training configurations (`configs/train/*.toml`).
+//!
+//! Every width the paper does not state is ours; `docs/learn.md` says which are paper facts.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::LearnError;
+
+/// Which member of the GarNet family.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Variant {
+    /// Point-wise garment features only, no mesh convolutions.
+    Naive,
+    /// FeaStNet garment stream; the body enters through its global feature.
+    Global,
+    /// Global plus local body features (15-NN max pooling per garment vertex).
+    Local,
+    /// Global with the shape and pose parameters in place of the global body feature.
+    GlobalParams,
+}
+
+impl Variant {
+    /// Name as in the paper.
+    pub fn paper_name(self) -> &'static str {
+        match self {
+            Variant::Naive => "GarNet-Naive",
+            Variant::Global => "GarNet-Global",
+            Variant::Local => "GarNet-Local",
+            Variant::GlobalParams => "GarNet-Global-Params",
+        }
+    }
+
+    /// Does the variant use the FeaStNet mesh convolutions?
+    pub fn has_mesh_convolutions(self) -> bool {
+        !matches!(self, Variant::Naive)
+    }
+}
+
+/// Network widths and neighbourhood sizes. Defaults: the CPU config.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    /// Network variant (default `local`).
+    pub variant: Variant,
+    /// Body points fed to the body stream, a fixed farthest-point subset of the body's
+    /// vertices (paper: 6,890, SMPL's count; CPU default 2,000).
+    pub body_points: usize,
+    /// Widths of the body stream's first point-wise MLP block (default [64, 64]).
+    pub body_mlp1: Vec<usize>,
+    /// Widths of the body stream's second block; the last is the global body feature
+    /// (paper: 512; default [128, 256]).
+    pub body_mlp2: Vec<usize>,
+    /// Widths of the spatial transformer's point-wise MLP and of its head (default
+    /// [64, 128, 256] and [128, 64]).
+    pub stn_mlp: Vec<usize>,
+    /// Spatial transformer head widths.
+    pub stn_head: Vec<usize>,
+    /// Garment point-wise MLP widths (default [32, 64]).
+    pub garment_mlp: Vec<usize>,
+    /// Width of the FeaStNet blocks (default 48).
+    pub conv_width: usize,
+    /// FeaStNet attention heads M (default 4; FeaStNet's paper used 8 to 32).
+    pub conv_heads: usize,
+    /// Residual FeaStNet blocks (paper: 6).
+    pub conv_blocks: usize,
+    /// Fusion MLP widths before the 3 outputs (paper: 4 blocks; default [128, 64, 32]).
+    pub fusion: Vec<usize>,
+    /// Body downsampling factor for local features (paper: 10).
+    pub local_downsample: usize,
+    /// Neighbours averaged per downsampled body point (paper: 16).
+    pub local_pool_k: usize,
+    /// Downsampled body points max-pooled per garment vertex (paper: 15).
+    pub local_k: usize,
+    /// Leaky ReLU slope (paper: 0.1).
+    pub leaky_slope: f64,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self {
+            variant: Variant::Local,
+            body_points: 2000,
+            body_mlp1: vec![64, 64],
+            body_mlp2: vec![128, 256],
+            stn_mlp: vec![64, 128, 256],
+            stn_head: vec![128, 64],
+            garment_mlp: vec![32, 64],
+            conv_width: 48,
+            conv_heads: 4,
+            conv_blocks: 6,
+            fusion: vec![128, 64, 32],
+            local_downsample: 10,
+            local_pool_k: 16,
+            local_k: 15,
+            leaky_slope: 0.1,
+        }
+    }
+}
+
+impl ModelConfig {
+    /// The paper-width config: 6,890 body points, 512-d global body feature, 8 heads.
+    pub fn paper(variant: Variant) -> Self {
+        Self {
+            variant,
+            body_points: 6890,
+            body_mlp1: vec![64, 64],
+            body_mlp2: vec![128, 512],
+            stn_mlp: vec![64, 128, 1024],
+            stn_head: vec![512, 256],
+            garment_mlp: vec![64, 128],
+            conv_width: 128,
+            conv_heads: 8,
+            conv_blocks: 6,
+            fusion: vec![256, 128, 64],
+            ..Self::default()
+        }
+    }
+
+    /// Refuses widths and sizes that cannot make a network.
+    pub fn validate(&self) -> Result<(), LearnError> {
+        let bad = |m: String| Err(LearnError::Config(m));
+        if self.body_points < 32 {
+            return bad(format!(
+                "model.body_points = {} (at least 32)",
+                self.body_points
+            ));
+        }
+        for (name, v) in [
+            ("body_mlp1", &self.body_mlp1),
+            ("body_mlp2", &self.body_mlp2),
+            ("stn_mlp", &self.stn_mlp),
+            ("stn_head", &self.stn_head),
+            ("garment_mlp", &self.garment_mlp),
+            ("fusion", &self.fusion),
+        ] {
+            if v.is_empty() || v.iter().any(|&w| w == 0 || w > 8192) {
+                return bad(format!(
+                    "model.{name} = {v:?}: 1 to 8192 per layer, not empty"
+                ));
+            }
+        }
+        if self.conv_width == 0 || self.conv_heads == 0 || self.conv_heads > 64 {
+            return bad("model.conv_width > 0 and model.conv_heads in 1..=64".into());
+        }
+        if self.variant.has_mesh_convolutions() && self.conv_blocks == 0 {
+            return bad("model.conv_blocks must be at least 1 for this variant".into());
+        }
+        if self.local_downsample < 1 || self.local_pool_k < 1 || self.local_k < 1 {
+            return bad("model.local_downsample, local_pool_k and local_k must be >= 1".into());
+        }
+        if self.body_points / self.local_downsample < self.local_k {
+            return bad(format!(
+                "model.body_points / local_downsample = {} < local_k = {}",
+                self.body_points / self.local_downsample,
+                self.local_k
+            ));
+        }
+        if !(0.0..1.0).contains(&self.leaky_slope) {
+            return bad(format!("model.leaky_slope = {} (0 to 1)", self.leaky_slope));
+        }
+        Ok(())
+    }
+
+    /// Downsampled body points for local features.
+    pub fn local_points(&self) -> usize {
+        self.body_points / self.local_downsample
+    }
+}
+
+/// Loss weights (paper Eq. 7 and the fine-tuning totals of section 4).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LossWeights {
+    /// Weight of L_vert (paper 1.0; 0.1 when fine-tuning with curvature).
+    pub vert: f64,
+    /// Weight of L_pen relative to L_vert (paper 1.0).
+    pub pen: f64,
+    /// Weight of L_norm (paper 0.3).
+    pub norm: f64,
+    /// Weight of L_bend (paper 0.5).
+    pub bend: f64,
+    /// Scale applied to the whole L_p (paper 1.0; 0.1 in the fine-tunes).
+    pub physics_scale: f64,
+    /// Weights of L_RQ^8, L_RQ^16, L_RQ^32 (paper 500, 50, 10 in the -RQ fine-tune; 0 off).
+    pub rq: [f64; 3],
+    /// Weight of L_MC (paper 10 in the -MC fine-tune; 0 off).
+    pub mc: f64,
+    /// Weight of L_UMC (0 off).
+    pub umc: f64,
+    /// Rescale each curvature term so that it equals L_p on the first batch of fine-tuning
+    /// (default true): the paper's weights were tuned for 10k-vertex SMPL garments.
+    pub rescale_curvature: bool,
+    /// Distance tolerance d_tol of L_pen, m (paper 0.05).
+    pub pen_tolerance: f64,
+    /// Push-out of body points along their normals, as a share of the body mesh's mean
+    /// edge length (paper 0.2).
+    pub pen_push_out: f64,
+}
+
+impl Default for LossWeights {
+    fn default() -> Self {
+        Self {
+            vert: 1.0,
+            pen: 1.0,
+            norm: 0.3,
+            bend: 0.5,
+            physics_scale: 1.0,
+            rq: [0.0; 3],
+            mc: 0.0,
+            umc: 0.0,
+            rescale_curvature: true,
+            pen_tolerance: 0.05,
+            pen_push_out: 0.2,
+        }
+    }
+}
+
+impl LossWeights {
+    /// Any curvature term on?
+    pub fn has_curvature(&self) -> bool {
+        self.rq.iter().any(|&w| w > 0.0) || self.mc > 0.0 || self.umc > 0.0
+    }
+}
+
+/// A training run's configuration (`configs/train/*.toml`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Run name.
+    pub name: String,
+    /// Dataset folder (relative to the working directory; `--data` overrides it).
+    pub data: PathBuf,
+    /// Seed of initialisation and shuffling (default 1).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Epochs (passes over the training split).
+    pub epochs: usize,
+    /// Samples per batch (paper: 16 at timing).
+    #[serde(default = "default_batch")]
+    pub batch_size: usize,
+    /// Adam learning rate (paper 1e-3).
+    #[serde(default = "default_lr")]
+    pub learning_rate: f64,
+    /// Use at most this many training samples (0: all); for overfitting tests.
+    #[serde(default)]
+    pub max_train_samples: usize,
+    /// Stop after this many minutes of training, with checkpoints saved (0: no cap).
+    #[serde(default)]
+    pub wall_clock_minutes: f64,
+    /// Shards shuffled together in memory when reading the training split (default 2).
+    #[serde(default = "default_buffer")]
+    pub shuffle_shards: usize,
+    /// The network.
+    #[serde(default)]
+    pub model: ModelConfig,
+    /// The losses.
+    #[serde(default)]
+    pub loss: LossWeights,
+}
+
+fn default_seed() -> u64 {
+    1
+}
+fn default_batch() -> usize {
+    8
+}
+fn default_lr() -> f64 {
+    1e-3
+}
+fn default_buffer() -> usize {
+    2
+}
+
+impl TrainConfig {
+    /// Reads and validates a TOML config.
+    pub fn load(path: &Path) -> Result<Self, LearnError> {
+        let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io {
+            path: path.to_path_buf(),
+            source: e,
+        })?;
+        let c: Self = toml::from_str(&text)
+            .map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// Refuses values out of range.
+    pub fn validate(&self) -> Result<(), LearnError> {
+        let bad = |m: String| Err(LearnError::Config(m));
+        if self.epochs == 0 || self.epochs > 100_000 {
+            return bad(format!("epochs = {} (1 to 100000)", self.epochs));
+        }
+        if self.batch_size == 0 || self.batch_size > 1024 {
+            return bad(format!("batch_size = {} (1 to 1024)", self.batch_size));
+        }
+        if !(self.learning_rate > 0.0 && self.learning_rate < 1.0) {
+            return bad(format!("learning_rate = {} (0 to 1)", self.learning_rate));
+        }
+        if self.shuffle_shards == 0 {
+            return bad("shuffle_shards must be at least 1".into());
+        }
+        if self.wall_clock_minutes < 0.0 || !self.wall_clock_minutes.is_finite() {
+            return bad(format!("wall_clock_minutes = {}", self.wall_clock_minutes));
+        }
+        let l = &self.loss;
+        for (n, w) in [
+            ("vert", l.vert),
+            ("pen", l.pen),
+            ("norm", l.norm),
+            ("bend", l.bend),
+            ("physics_scale", l.physics_scale),
+            ("mc", l.mc),
+            ("umc", l.umc),
+            ("rq[0]", l.rq[0]),
+            ("rq[1]", l.rq[1]),
+            ("rq[2]", l.rq[2]),
+        ] {
+            if !(w >= 0.0 && w.is_finite()) {
+                return bad(format!("loss.{n} = {w} (a finite weight >= 0)"));
+            }
+        }
+        if !(l.pen_tolerance > 0.0 && l.pen_tolerance < 1.0) {
+            return bad(format!(
+                "loss.pen_tolerance = {} m (0 to 1)",
+                l.pen_tolerance
+            ));
+        }
+        self.model.validate()
+    }
+}

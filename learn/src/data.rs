@@ -1,0 +1,231 @@
+//! From dataset rows to network inputs: root-relative coordinates, the body point subset
+//! with normals, the k-NN indices of GarNet-Local (kiddo), and the pushed-out body points
+//! that L_pen compares against.
+
+use std::num::NonZero;
+
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use dataset::shard::{Row, Static};
+use glam::Vec3;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+
+use crate::config::{ModelConfig, Variant};
+use crate::model::Input;
+use crate::topology::{farthest_point_subset, mean_edge_length, vertex_normals};
+
+/// One sample made ready for the network, on the CPU.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// Sample id in its dataset.
+    pub id: u64,
+    /// The body's root joint (world), subtracted from every coordinate below.
+    pub root: Vec3,
+    /// Body subset points and normals, `P * 6`.
+    pub body: Vec<f32>,
+    /// Shape and pose parameters.
+    pub params: Vec<f32>,
+    /// Warped garment M, root-relative.
+    pub warped: Vec<Vec3>,
+    /// Simulated garment G, root-relative (absent at inference).
+    pub target: Option<Vec<Vec3>>,
+    /// GarNet-Local pooling neighbours (rows of this sample's P points), `P' * K_pool`.
+    pub pool: Vec<u32>,
+    /// GarNet-Local neighbours of each garment vertex (rows of P'), `N * K`.
+    pub local: Vec<u32>,
+    /// Full body vertices, root-relative, pushed out along their normals (for L_pen).
+    pub pen_points: Vec<Vec3>,
+    /// Their unit normals.
+    pub pen_normals: Vec<Vec3>,
+}
+
+/// Turns rows into [`Prepared`] samples for one model config and one garment.
+#[derive(Debug, Clone)]
+pub struct Preprocessor {
+    config: ModelConfig,
+    body_triangles: Vec<[u32; 3]>,
+    /// Body vertex indices fed to the body stream (fixed farthest-point subset).
+    pub body_subset: Vec<u32>,
+    /// Positions within `body_subset` of the downsampled points (GarNet-Local).
+    pub local_subset: Vec<u32>,
+    push_out: f32,
+}
+
+impl Preprocessor {
+    /// The subsets are computed once from the canonical body, deterministically.
+    pub fn new(statics: &Static, config: &ModelConfig, push_out_share: f64) -> Self {
+        let canon = &statics.canonical_body;
+        let body_subset = farthest_point_subset(canon, config.body_points);
+        let sub: Vec<Vec3> = body_subset.iter().map(|&i| canon[i as usize]).collect();
+        let local_subset = farthest_point_subset(&sub, config.local_points());
+        let push_out = push_out_share as f32 * mean_edge_length(canon, &statics.body_triangles);
+        Self {
+            config: config.clone(),
+            body_triangles: statics.body_triangles.clone(),
+            body_subset,
+            local_subset,
+            push_out,
+        }
+    }
+
+    /// The L_pen push-out distance, m.
+    pub fn push_out(&self) -> f32 {
+        self.push_out
+    }
+
+    /// Prepares one sample from its posed body, warped garment and (for training) the
+    /// simulated garment.
+    pub fn prepare(
+        &self,
+        id: u64,
+        body: &[Vec3],
+        root: Vec3,
+        params: Vec<f32>,
+        warped: &[Vec3],
+        target: Option<&[Vec3]>,
+    ) -> Prepared {
+        let rel = |v: &[Vec3]| v.iter().map(|&p| p - root).collect::<Vec<_>>();
+        let body_rel = rel(body);
+        let normals = vertex_normals(&body_rel, &self.body_triangles);
+        let mut pts = Vec::with_capacity(self.body_subset.len() * 6);
+        let sub: Vec<Vec3> = self
+            .body_subset
+            .iter()
+            .map(|&i| {
+                let (p, n) = (body_rel[i as usize], normals[i as usize]);
+                pts.extend_from_slice(&[p.x, p.y, p.z, n.x, n.y, n.z]);
+                p
+            })
+            .collect();
+        let warped = rel(warped);
+        let (pool, local) = if self.config.variant == Variant::Local {
+            let down: Vec<Vec3> = self.local_subset.iter().map(|&i| sub[i as usize]).collect();
+            let pool = knn(&sub, &down, self.config.local_pool_k);
+            let local = knn(&down, &warped, self.config.local_k);
+            (pool, local)
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let pen_points = body_rel
+            .iter()
+            .zip(&normals)
+            .map(|(&p, &n)| p + n * self.push_out)
+            .collect();
+        Prepared {
+            id,
+            root,
+            body: pts,
+            params,
+            warped,
+            target: target.map(rel),
+            pool,
+            local,
+            pen_points,
+            pen_normals: normals,
+        }
+    }
+
+    /// Prepares a dataset row.
+    pub fn prepare_row(&self, row: &Row) -> Prepared {
+        self.prepare(
+            row.id,
+            &row.body,
+            row.root,
+            row_params(row),
+            &row.warped,
+            Some(&row.draped),
+        )
+    }
+}
+
+/// Shape parameters then pose quaternions (x, y, z, w per bone): GarNet-Global-Params'
+/// body description.
+pub fn row_params(row: &Row) -> Vec<f32> {
+    let mut p = row.shape.to_vec();
+    for q in &row.pose {
+        p.extend_from_slice(&[q.x, q.y, q.z, q.w]);
+    }
+    p
+}
+
+/// For each query, the indices of its `k` nearest points (nearest first).
+pub fn knn(points: &[Vec3], queries: &[Vec3], k: usize) -> Vec<u32> {
+    let entries: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
+    let tree = ImmutableKdTree::new_from_slice(&entries).expect("a non-empty point set");
+    let k = NonZero::new(k.min(points.len())).expect("k >= 1");
+    let mut out = Vec::with_capacity(queries.len() * k.get());
+    for q in queries {
+        let found = tree
+            .query(&q.to_array())
+            .nearest_n::<SquaredEuclidean<f32>>(k)
+            .execute();
+        out.extend(found.iter().map(|r| r.item as u32));
+    }
+    out
+}
+
+/// For each query, the index of its nearest point.
+pub fn nearest(points: &[Vec3], queries: &[Vec3]) -> Vec<u32> {
+    knn(points, queries, 1)
+}
+
+fn vec3s(v: &[Vec3]) -> Vec<f32> {
+    v.iter().flat_map(|p| p.to_array()).collect()
+}
+
+/// A batch on a device: the network input and, for training, the target.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// The network input.
+    pub input: Input,
+    /// G^G, `[B, N, 3]`, root-relative.
+    pub target: Option<Tensor<3>>,
+}
+
+/// Stacks prepared samples into a batch on `device`.
+pub fn collate(samples: &[&Prepared], config: &ModelConfig, device: &Device) -> Batch {
+    let b = samples.len();
+    let p = samples[0].body.len() / 6;
+    let n = samples[0].warped.len();
+    let s = samples[0].params.len();
+    let pd = config.local_points();
+    let flat = |f: &dyn Fn(&Prepared) -> Vec<f32>| -> Vec<f32> {
+        samples.iter().flat_map(|x| f(x)).collect()
+    };
+    let body = Tensor::<3>::from_data(
+        TensorData::new(flat(&|x| x.body.clone()), [b, p, 6]),
+        device,
+    );
+    let params =
+        Tensor::<2>::from_data(TensorData::new(flat(&|x| x.params.clone()), [b, s]), device);
+    let warped = Tensor::<3>::from_data(
+        TensorData::new(flat(&|x| vec3s(&x.warped)), [b, n, 3]),
+        device,
+    );
+    let target = samples[0].target.is_some().then(|| {
+        Tensor::<3>::from_data(
+            TensorData::new(flat(&|x| vec3s(x.target.as_ref().unwrap())), [b, n, 3]),
+            device,
+        )
+    });
+    let offset = |field: &dyn Fn(&Prepared) -> &Vec<u32>, rows: usize| -> Tensor<1, Int> {
+        let v: Vec<i64> = samples
+            .iter()
+            .enumerate()
+            .flat_map(|(i, x)| field(x).iter().map(move |&j| (i * rows) as i64 + j as i64))
+            .collect();
+        let len = v.len();
+        Tensor::from_data(TensorData::new(v, [len]), device)
+    };
+    let pool_index = offset(&|x| &x.pool, p);
+    let local_index = offset(&|x| &x.local, pd);
+    Batch {
+        input: Input {
+            body,
+            params,
+            warped,
+            pool_index,
+            local_index,
+        },
+        target,
+    }
+}

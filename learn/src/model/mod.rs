@@ -1,0 +1,268 @@
+//! The GarNet family (GarNet++ paper, section 3): **the forward pass** is
+//! [`GarNet::forward`].
+//!
+//! Body stream (PointNet with a spatial transformer) -> global body feature (and point-wise
+//! body features for GarNet-Local); garment stream (point-wise MLP, the global body feature
+//! repeated per vertex, residual FeaStNet blocks with xyz concatenated at each block);
+//! fusion (point-wise MLP to 3 outputs, the per-vertex translation T^P). Prediction
+//! G^P = M + T^P.
+
+mod layers;
+
+pub use layers::{FeaStConv, Graph, Mlp};
+
+use burn::module::Module;
+use burn::nn::{Initializer, Linear, LinearConfig};
+use burn::tensor::activation::leaky_relu;
+use burn::tensor::{Device, Int, Tensor};
+
+use crate::config::{ModelConfig, Variant};
+
+/// What the network reads for one batch (coordinates relative to the body's root joint).
+#[derive(Debug, Clone)]
+pub struct Input {
+    /// Body points with normals, `[B, P, 6]` (xyz, normal).
+    pub body: Tensor<3>,
+    /// Shape and pose parameters, `[B, S]` (GarNet-Global-Params only).
+    pub params: Tensor<2>,
+    /// The DQS-warped garment M, `[B, N, 3]`.
+    pub warped: Tensor<3>,
+    /// For each downsampled body point, its `local_pool_k` nearest body points, as rows of
+    /// the flattened `[B * P]` body features, `[B * P' * K_pool]` (GarNet-Local).
+    pub pool_index: Tensor<1, Int>,
+    /// For each garment vertex, its `local_k` nearest downsampled body points, as rows of
+    /// the flattened `[B * P']`, `[B * N * K]` (GarNet-Local).
+    pub local_index: Tensor<1, Int>,
+}
+
+/// PointNet's spatial transformer on the body points: a 3 x 3 matrix per sample, identity
+/// at initialisation.
+#[derive(Module, Debug)]
+pub struct SpatialTransformer {
+    mlp: Mlp,
+    head: Mlp,
+    out: Linear,
+}
+
+impl SpatialTransformer {
+    fn new(c: &ModelConfig, device: &Device) -> Self {
+        let mlp = Mlp::new(6, &c.stn_mlp, c.leaky_slope, device);
+        let head = Mlp::new(
+            *c.stn_mlp.last().unwrap(),
+            &c.stn_head,
+            c.leaky_slope,
+            device,
+        );
+        let out = LinearConfig::new(*c.stn_head.last().unwrap(), 9)
+            .with_initializer(Initializer::Zeros)
+            .init(device);
+        Self { mlp, head, out }
+    }
+
+    /// # Shapes
+    /// `[B, P, 6]` -> `[B, 3, 3]`.
+    fn forward(&self, x: Tensor<3>) -> Tensor<3> {
+        let [b, _, _] = x.dims();
+        let h = self.mlp.forward(x); // [B, P, C]
+        let c = h.dims()[2];
+        let g = h.max_dim(1).reshape([b, c]); // [B, C]
+        let t = self.out.forward(self.head.forward(g)).reshape([b, 3, 3]); // [B, 3, 3]
+        let eye = Tensor::<2>::eye(3, &t.device()).unsqueeze_dim::<3>(0);
+        t + eye
+    }
+}
+
+/// The body stream: spatial transformer, MLP block 1, skip connection of the transformed
+/// points to the input of MLP block 2, max pool.
+#[derive(Module, Debug)]
+pub struct BodyStream {
+    stn: SpatialTransformer,
+    mlp1: Mlp,
+    /// Block 2 up to its last layer: its output is the point-wise body feature.
+    mlp2_point: Mlp,
+    /// Block 2's last layer: max-pooled into the global body feature.
+    mlp2_global: Mlp,
+}
+
+impl BodyStream {
+    fn new(c: &ModelConfig, device: &Device) -> Self {
+        let c1 = *c.body_mlp1.last().unwrap();
+        let (point, global) = c.body_mlp2.split_at(c.body_mlp2.len() - 1);
+        Self {
+            stn: SpatialTransformer::new(c, device),
+            mlp1: Mlp::new(6, &c.body_mlp1, c.leaky_slope, device),
+            mlp2_point: Mlp::new(c1 + 6, point, c.leaky_slope, device),
+            mlp2_global: Mlp::new(*point.last().unwrap(), global, c.leaky_slope, device),
+        }
+    }
+
+    /// # Shapes
+    /// `[B, P, 6]` -> (point-wise `[B, P, C_p]`, global `[B, G]`).
+    pub fn forward(&self, x: Tensor<3>) -> (Tensor<3>, Tensor<2>) {
+        let [b, p, _] = x.dims();
+        let t = self.stn.forward(x.clone()); // [B, 3, 3]
+        let xyz = x.clone().slice([0..b, 0..p, 0..3]).matmul(t.clone()); // [B, P, 3]
+        let nrm = x.slice([0..b, 0..p, 3..6]).matmul(t); // [B, P, 3]
+        let xt = Tensor::cat(vec![xyz, nrm], 2); // [B, P, 6]
+        let f1 = self.mlp1.forward(xt.clone()); // [B, P, C1]
+        let point = self.mlp2_point.forward(Tensor::cat(vec![f1, xt], 2)); // [B, P, Cp]
+        let g = self.mlp2_global.forward(point.clone()); // [B, P, G]
+        let gd = g.dims()[2];
+        (point, g.max_dim(1).reshape([b, gd]))
+    }
+}
+
+/// The garment stream's mesh convolutions: `blocks` residual FeaStNet blocks, the input xyz
+/// concatenated to the input of each.
+#[derive(Module, Debug)]
+pub struct ConvStack {
+    blocks: Vec<FeaStConv>,
+    #[module(skip)]
+    slope: f64,
+}
+
+impl ConvStack {
+    fn new(c: &ModelConfig, device: &Device) -> Self {
+        let blocks = (0..c.conv_blocks)
+            .map(|_| FeaStConv::new(c.conv_width + 3, c.conv_width, c.conv_heads, device))
+            .collect();
+        Self {
+            blocks,
+            slope: c.leaky_slope,
+        }
+    }
+
+    /// # Shapes
+    /// `h`: `[B, N, C]`, `xyz`: `[B, N, 3]` -> `[B, N, C]`.
+    fn forward(&self, mut h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
+        for conv in &self.blocks {
+            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g); // [B, N, C]
+            h = h + leaky_relu(y, self.slope);
+        }
+        h
+    }
+}
+
+/// A GarNet network. Which parts exist depends on the variant.
+#[derive(Module, Debug)]
+pub struct GarNet {
+    /// PointNet body stream (absent in GarNet-Global-Params).
+    body: Option<BodyStream>,
+    /// Reduces point-wise body features before local pooling (GarNet-Local).
+    local_in: Option<Linear>,
+    /// Garment point-wise MLP.
+    garment_mlp: Mlp,
+    /// Point-wise garment features + global body feature -> conv width.
+    conv_in: Linear,
+    /// Residual FeaStNet blocks (absent in GarNet-Naive).
+    convs: Option<ConvStack>,
+    /// Fusion MLP.
+    fusion: Mlp,
+    /// Last fusion layer: 3 outputs, zero at initialisation (the network starts at M).
+    out: Linear,
+    #[module(skip)]
+    variant: Variant,
+    #[module(skip)]
+    slope: f64,
+    #[module(skip)]
+    local_pool_k: usize,
+    #[module(skip)]
+    local_k: usize,
+    #[module(skip)]
+    local_points: usize,
+}
+
+/// Width of the local body feature after its reduction layer (our choice).
+pub const LOCAL_WIDTH: usize = 32;
+
+impl GarNet {
+    /// A freshly initialised network. `params` is the length of the shape-and-pose vector
+    /// (used by GarNet-Global-Params).
+    pub fn new(c: &ModelConfig, params: usize, device: &Device) -> Self {
+        let global = match c.variant {
+            Variant::GlobalParams => params,
+            _ => *c.body_mlp2.last().unwrap(),
+        };
+        let body_point = c.body_mlp2[c.body_mlp2.len() - 2];
+        let cg = *c.garment_mlp.last().unwrap();
+        let local = matches!(c.variant, Variant::Local);
+        let fusion_in = cg + c.conv_width * 2 + global + if local { LOCAL_WIDTH } else { 0 };
+        Self {
+            body: (c.variant != Variant::GlobalParams).then(|| BodyStream::new(c, device)),
+            local_in: local.then(|| LinearConfig::new(body_point, LOCAL_WIDTH).init(device)),
+            garment_mlp: Mlp::new(3, &c.garment_mlp, c.leaky_slope, device),
+            conv_in: LinearConfig::new(cg + global, c.conv_width).init(device),
+            convs: c
+                .variant
+                .has_mesh_convolutions()
+                .then(|| ConvStack::new(c, device)),
+            fusion: Mlp::new(fusion_in, &c.fusion, c.leaky_slope, device),
+            out: LinearConfig::new(*c.fusion.last().unwrap(), 3)
+                .with_initializer(Initializer::Zeros)
+                .init(device),
+            variant: c.variant,
+            slope: c.leaky_slope,
+            local_pool_k: c.local_pool_k,
+            local_k: c.local_k,
+            local_points: c.local_points(),
+        }
+    }
+
+    /// The variant this network was built as.
+    pub fn variant(&self) -> Variant {
+        self.variant
+    }
+
+    /// Per-vertex translations T^P; the prediction is `input.warped + T^P`.
+    ///
+    /// # Shapes
+    /// `input` as documented on [`Input`] -> `[B, N, 3]`.
+    pub fn forward(&self, input: &Input, g: &Graph) -> Tensor<3> {
+        let [b, n, _] = input.warped.dims();
+        // Body stream.
+        let (body_point, body_global) = match &self.body {
+            Some(body) => {
+                let (p, g) = body.forward(input.body.clone()); // [B, P, Cp], [B, G]
+                (Some(p), g)
+            }
+            None => (None, input.params.clone()), // [B, S]
+        };
+        let gd = body_global.dims()[1];
+        let global_rep = body_global.unsqueeze_dim::<3>(1).expand([b, n, gd]); // [B, N, G]
+        // Garment stream.
+        let xyz = input.warped.clone(); // [B, N, 3]
+        let point = self.garment_mlp.forward(xyz.clone()); // [B, N, Cg]
+        let h0 = leaky_relu(
+            self.conv_in
+                .forward(Tensor::cat(vec![point.clone(), global_rep.clone()], 2)),
+            self.slope,
+        ); // [B, N, C]
+        let patch = match &self.convs {
+            Some(convs) => convs.forward(h0, xyz, g), // [B, N, C]
+            None => h0,
+        };
+        let c = patch.dims()[2];
+        let garment_global = patch.clone().max_dim(1).expand([b, n, c]); // [B, N, C]
+        let mut fused = vec![point, patch, garment_global, global_rep];
+        // Local body features.
+        if let (Some(local_in), Some(body_point)) = (&self.local_in, body_point) {
+            let [_, p, _] = body_point.dims();
+            let f = leaky_relu(local_in.forward(body_point), self.slope); // [B, P, L]
+            let l = LOCAL_WIDTH;
+            let (pd, kp, k) = (self.local_points, self.local_pool_k, self.local_k);
+            let pooled = f
+                .reshape([b * p, l])
+                .select(0, input.pool_index.clone()) // [B * P' * Kp, L]
+                .reshape([b * pd, kp, l])
+                .mean_dim(1)
+                .reshape([b * pd, l]); // [B * P', L]
+            let local = pooled
+                .select(0, input.local_index.clone()) // [B * N * K, L]
+                .reshape([b * n, k, l])
+                .max_dim(1)
+                .reshape([b, n, l]); // [B, N, L]
+            fused.push(local);
+        }
+        self.out.forward(self.fusion.forward(Tensor::cat(fused, 2))) // [B, N, 3]
+    }
+}

@@ -1,0 +1,177 @@
+//! The run folder: resolved config, run info, checkpoints, logs.
+
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::path::Path;
+
+use burn::optim::ModuleOptimizer;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use crate::LearnError;
+use crate::config::TrainConfig;
+use crate::model::GarNet;
+use crate::train::{RunInfo, State, load_model, save_model};
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> LearnError + '_ {
+    move |e| LearnError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    }
+}
+
+/// Reads a JSON file, `None` if it does not exist.
+pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<Option<T>, LearnError> {
+    match std::fs::read(path) {
+        Ok(b) => serde_json::from_slice(&b)
+            .map(Some)
+            .map_err(|e| LearnError::Checkpoint {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            }),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(io(path)(e)),
+    }
+}
+
+fn write_json(path: &Path, value: &impl Serialize) -> Result<(), LearnError> {
+    let text = serde_json::to_string_pretty(value).expect("serialisable");
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, text).map_err(io(path))?;
+    std::fs::rename(&tmp, path).map_err(io(path))
+}
+
+/// sha256 of a dataset's manifest file, hex.
+pub fn manifest_sha256(data: &Path) -> Result<String, LearnError> {
+    let p = data.join("manifest.json");
+    let bytes = std::fs::read(&p).map_err(io(&p))?;
+    Ok(dataset::generate::sha256(&bytes))
+}
+
+/// Creates the run folder with `config.toml` and `run.json`, or checks that an existing
+/// one was made by the same config on the same garment (resume).
+pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Result<(), LearnError> {
+    std::fs::create_dir_all(run).map_err(io(run))?;
+    let cp = run.join("config.toml");
+    let text = toml::to_string(config).expect("serialisable config");
+    match std::fs::read_to_string(&cp) {
+        Ok(old) => {
+            let old: TrainConfig = toml::from_str(&old)
+                .map_err(|e| LearnError::Config(format!("{}: {e}", cp.display())))?;
+            if &old != config {
+                return Err(LearnError::Mismatch(format!(
+                    "{} holds a run of another config; use another -o folder, or delete it",
+                    run.display()
+                )));
+            }
+        }
+        Err(_) => {
+            std::fs::write(&cp, text).map_err(io(&cp))?;
+        }
+    }
+    let ip = run.join("run.json");
+    match read_json::<RunInfo>(&ip)? {
+        Some(old) if old.garment != info.garment || old.vertices != info.vertices => {
+            Err(LearnError::Mismatch(format!(
+                "{} was trained on {} ({} vertices), not {} ({} vertices)",
+                run.display(),
+                old.garment,
+                old.vertices,
+                info.garment,
+                info.vertices
+            )))
+        }
+        Some(_) => Ok(()),
+        None => write_json(&ip, info),
+    }
+}
+
+/// Loads `init`'s best weights into `model` after checking variant and garment.
+pub fn load_init(model: GarNet, init: &Path, info: &RunInfo) -> Result<GarNet, LearnError> {
+    let (config, old) = open_run(init)?;
+    if config.model.variant != model.variant() {
+        return Err(LearnError::Mismatch(format!(
+            "{} is a {} run; this config trains {}",
+            init.display(),
+            config.model.variant.paper_name(),
+            model.variant().paper_name()
+        )));
+    }
+    if old.garment != info.garment || old.vertices != info.vertices {
+        return Err(LearnError::Mismatch(format!(
+            "{} was trained on {} ({} vertices), this data is {} ({} vertices)",
+            init.display(),
+            old.garment,
+            old.vertices,
+            info.garment,
+            info.vertices
+        )));
+    }
+    load_model(model, &init.join("best.bpk"))
+}
+
+/// Reads a run folder's config and info.
+pub fn open_run(run: &Path) -> Result<(TrainConfig, RunInfo), LearnError> {
+    let cp = run.join("config.toml");
+    if !cp.exists() {
+        return Err(LearnError::Mismatch(format!(
+            "{} is not a run folder (no config.toml)",
+            run.display()
+        )));
+    }
+    let config = TrainConfig::load(&cp)?;
+    let info = read_json::<RunInfo>(&run.join("run.json"))?
+        .ok_or_else(|| LearnError::Mismatch(format!("{} has no run.json", run.display())))?;
+    Ok((config, info))
+}
+
+/// Saves model, optimiser and state (each atomically; the state last, so a state file
+/// never points past the weights beside it).
+pub fn checkpoint(
+    run: &Path,
+    model: &GarNet,
+    optim: &ModuleOptimizer,
+    state: &State,
+) -> Result<(), LearnError> {
+    save_model(model, &run.join("last.bpk"))?;
+    let op = run.join("last-optim.bpk");
+    let bytes = optim.into_bytes().map_err(|e| LearnError::Checkpoint {
+        path: op.clone(),
+        reason: e.to_string(),
+    })?;
+    let tmp = op.with_extension("tmp");
+    std::fs::write(&tmp, &*bytes).map_err(io(&op))?;
+    std::fs::rename(&tmp, &op).map_err(io(&op))?;
+    write_json(&run.join("state.json"), state)
+}
+
+/// Opens a CSV log for appending, writing its header if it is new.
+pub fn append(path: &Path, header: &str) -> Result<File, LearnError> {
+    let new = !path.exists();
+    let mut f = OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .map_err(io(path))?;
+    if new {
+        writeln!(f, "{header}").map_err(io(path))?;
+    }
+    Ok(f)
+}
+
+/// A progress bar (hidden when `show` is false).
+pub fn progress(show: bool, len: u64) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} batches, {per_sec}, ETA {eta} | {msg}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    bar
+}

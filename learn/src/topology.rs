@@ -1,0 +1,179 @@
+//! Fixed mesh structure shared by every sample of a garment: the FeaStNet neighbourhoods,
+//! the bending pairs, the faces; and two helpers for bodies (farthest-point subsets,
+//! vertex normals).
+
+use std::collections::BTreeSet;
+
+use glam::Vec3;
+
+/// A garment template's connectivity, precomputed once per model.
+#[derive(Debug, Clone)]
+pub struct Topology {
+    /// Vertex count N.
+    pub vertices: usize,
+    /// Triangles [F][3].
+    pub triangles: Vec<[u32; 3]>,
+    /// FeaStNet edges j -> i over the one-ring plus the self-loop: source vertex j.
+    pub conv_src: Vec<i64>,
+    /// Destination vertex i of each FeaStNet edge.
+    pub conv_dst: Vec<i64>,
+    /// 1 / |N_i| (the one-ring plus the vertex itself) per vertex.
+    pub inv_degree: Vec<f32>,
+    /// Mesh edges (i < j), once each.
+    pub edges: Vec<[u32; 2]>,
+    /// Vertex pairs exactly two edges apart (i < k), for L_bend.
+    pub bend_pairs: Vec<[u32; 2]>,
+}
+
+impl Topology {
+    /// Builds the structure of a triangle mesh with `vertices` vertices.
+    pub fn new(vertices: usize, triangles: &[[u32; 3]]) -> Self {
+        let mut ring: Vec<BTreeSet<u32>> = vec![BTreeSet::new(); vertices];
+        for t in triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                ring[a as usize].insert(b);
+                ring[b as usize].insert(a);
+            }
+        }
+        let mut conv_src = Vec::new();
+        let mut conv_dst = Vec::new();
+        let mut inv_degree = Vec::with_capacity(vertices);
+        let mut edges = Vec::new();
+        let mut bend = BTreeSet::new();
+        for (i, r) in ring.iter().enumerate() {
+            conv_src.push(i as i64);
+            conv_dst.push(i as i64);
+            for &j in r {
+                conv_src.push(j as i64);
+                conv_dst.push(i as i64);
+                if (i as u32) < j {
+                    edges.push([i as u32, j]);
+                }
+                for &k in &ring[j as usize] {
+                    if k as usize != i && !r.contains(&k) {
+                        let (a, b) = if (i as u32) < k {
+                            (i as u32, k)
+                        } else {
+                            (k, i as u32)
+                        };
+                        bend.insert([a, b]);
+                    }
+                }
+            }
+            inv_degree.push(1.0 / (r.len() + 1) as f32);
+        }
+        Self {
+            vertices,
+            triangles: triangles.to_vec(),
+            conv_src,
+            conv_dst,
+            inv_degree,
+            edges,
+            bend_pairs: bend.into_iter().collect(),
+        }
+    }
+
+    /// One-ring neighbours of each vertex (without the vertex), from the FeaStNet edges.
+    pub fn one_rings(&self) -> Vec<Vec<u32>> {
+        let mut r = vec![Vec::new(); self.vertices];
+        for (&s, &d) in self.conv_src.iter().zip(&self.conv_dst) {
+            if s != d {
+                r[d as usize].push(s as u32);
+            }
+        }
+        r
+    }
+}
+
+/// `count` indices of `points` chosen by farthest-point sampling from index 0: a fixed,
+/// deterministic, roughly even subset.
+pub fn farthest_point_subset(points: &[Vec3], count: usize) -> Vec<u32> {
+    let count = count.min(points.len());
+    if count == 0 {
+        return Vec::new();
+    }
+    let mut chosen = Vec::with_capacity(count);
+    let mut dist = vec![f32::INFINITY; points.len()];
+    let mut next = 0usize;
+    for _ in 0..count {
+        chosen.push(next as u32);
+        let p = points[next];
+        let mut best = (0usize, -1.0f32);
+        for (i, q) in points.iter().enumerate() {
+            let d = dist[i].min(q.distance_squared(p));
+            dist[i] = d;
+            if d > best.1 {
+                best = (i, d);
+            }
+        }
+        next = best.0;
+    }
+    chosen
+}
+
+/// Area-weighted unit vertex normals of a triangle mesh (zero for isolated vertices).
+pub fn vertex_normals(points: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut n = vec![Vec3::ZERO; points.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|i| points[i as usize]);
+        let f = (b - a).cross(c - a);
+        for &i in t {
+            n[i as usize] += f;
+        }
+    }
+    n.into_iter().map(|v| v.normalize_or_zero()).collect()
+}
+
+/// Mean edge length of a triangle mesh (each triangle's three edges; shared edges count
+/// twice, which does not change the mean of a closed or nearly closed mesh much).
+pub fn mean_edge_length(points: &[Vec3], triangles: &[[u32; 3]]) -> f32 {
+    let mut sum = 0.0f64;
+    for t in triangles {
+        for k in 0..3 {
+            sum += points[t[k] as usize].distance(points[t[(k + 1) % 3] as usize]) as f64;
+        }
+    }
+    (sum / (3 * triangles.len().max(1)) as f64) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two triangles sharing an edge: a quad 0-1-2-3.
+    fn quad() -> Topology {
+        Topology::new(4, &[[0, 1, 2], [0, 2, 3]])
+    }
+
+    #[test]
+    fn rings_pairs_and_degrees_of_a_quad() {
+        let t = quad();
+        assert_eq!(t.edges, vec![[0, 1], [0, 2], [0, 3], [1, 2], [2, 3]]);
+        // 1 and 3 are the only pair two edges apart.
+        assert_eq!(t.bend_pairs, vec![[1, 3]]);
+        // Vertex 0 has neighbours 1, 2, 3 plus itself.
+        assert_eq!(t.inv_degree[0], 0.25);
+        assert_eq!(t.inv_degree[1], 1.0 / 3.0);
+        assert_eq!(t.conv_src.len(), 4 + 2 * 5);
+        assert_eq!(t.one_rings()[1], vec![0, 2]);
+    }
+
+    #[test]
+    fn farthest_points_spread_out() {
+        let pts: Vec<Vec3> = (0..11).map(|i| Vec3::new(i as f32, 0.0, 0.0)).collect();
+        assert_eq!(farthest_point_subset(&pts, 3), vec![0, 10, 5]);
+    }
+
+    #[test]
+    fn normals_of_a_flat_quad_point_up() {
+        let pts = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, -1.0), Vec3::NEG_Z];
+        for n in vertex_normals(&pts, &quad().triangles) {
+            assert!((n - Vec3::Y).length() < 1e-6, "{n}");
+        }
+        assert!(
+            (mean_edge_length(&pts, &quad().triangles) - (4.0 + 2.0 * 2f32.sqrt()) / 6.0).abs()
+                < 1e-6
+        );
+    }
+}

@@ -1,0 +1,448 @@
+//! `drape train`: Adam over batches read shard by shard, validation every epoch, best and
+//! last checkpoints, resume after interruption, a CSV log of every loss term.
+//!
+//! A run folder holds: `config.toml` (the resolved config, seed included), `run.json` (the
+//! garment, its vertex count, the dataset it trained on, curvature scales), `last.bpk` and
+//! `last-optim.bpk` (model and Adam state), `best.bpk` (lowest validation loss), `state.json`
+//! (where training is: epoch, batch, best loss), `log.csv` (per epoch, train and val means)
+//! and `steps.csv` (per batch).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::{Device, Tensor};
+use dataset::config::Split;
+use dataset::reader::Dataset;
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rayon::prelude::{IntoParallelRefIterator, ParallelIterator};
+use serde::{Deserialize, Serialize};
+
+use crate::LearnError;
+use crate::config::TrainConfig;
+use crate::data::{Batch, Prepared, Preprocessor, collate};
+use crate::loss::{self, LossTopology};
+use crate::model::{GarNet, Graph};
+use crate::topology::Topology;
+
+/// The loss terms of one batch (or their mean over many), and Edist.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Terms {
+    /// Weighted total that was minimised.
+    pub total: f64,
+    /// L_vert, m^2.
+    pub vert: f64,
+    /// L_pen, m.
+    pub pen: f64,
+    /// L_norm.
+    pub norm: f64,
+    /// L_bend, m.
+    pub bend: f64,
+    /// L_UMC, m^2.
+    pub umc: f64,
+    /// Edist, cm (Eq. 17): mean vertex distance.
+    pub edist_cm: f64,
+}
+
+impl Terms {
+    /// Column names of the CSV logs.
+    pub const HEADER: &'static str = "total,vert,pen,norm,bend,umc,edist_cm";
+
+    fn csv(&self) -> String {
+        format!(
+            "{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.5}",
+            self.total, self.vert, self.pen, self.norm, self.bend, self.umc, self.edist_cm
+        )
+    }
+
+    fn add(&mut self, o: &Terms, w: f64) {
+        self.total += o.total * w;
+        self.vert += o.vert * w;
+        self.pen += o.pen * w;
+        self.norm += o.norm * w;
+        self.bend += o.bend * w;
+        self.umc += o.umc * w;
+        self.edist_cm += o.edist_cm * w;
+    }
+}
+
+fn scalar(t: &Tensor<1>) -> f64 {
+    t.clone().into_scalar::<f32>() as f64
+}
+
+/// Everything fixed for one garment and one model config: graph, loss indices, inputs.
+#[derive(Debug, Clone)]
+pub struct Setup {
+    /// The training config.
+    pub config: TrainConfig,
+    /// The garment's connectivity.
+    pub topology: Topology,
+    /// Rows to inputs.
+    pub pre: Preprocessor,
+    /// FeaStNet graph on the device.
+    pub graph: Graph,
+    /// Loss index tensors on the device.
+    pub loss_topology: LossTopology,
+    /// Length of the shape-and-pose vector.
+    pub params: usize,
+    /// The device.
+    pub device: Device,
+}
+
+impl Setup {
+    /// Builds the fixed parts for a dataset's garment.
+    pub fn new(config: &TrainConfig, data: &Dataset, device: &Device) -> Self {
+        let st = &data.statics;
+        let topology = Topology::new(st.garment_vertices.len(), &st.garment_triangles);
+        Self {
+            config: config.clone(),
+            pre: Preprocessor::new(st, &config.model, config.loss.pen_push_out),
+            graph: Graph::new(&topology, device),
+            loss_topology: LossTopology::new(&topology, device),
+            params: dataset::shard::SHAPE_FIELDS.len() + 4 * st.bones,
+            topology,
+            device: device.clone(),
+        }
+    }
+
+    /// Forward pass and losses of one batch. Returns the differentiable total.
+    pub fn losses(&self, model: &GarNet, samples: &[&Prepared]) -> (Tensor<1>, Terms) {
+        let Batch { input, target } = collate(samples, &self.config.model, &self.device);
+        let target = target.expect("training samples carry their target");
+        let pred = input.warped.clone() + model.forward(&input, &self.graph); // [B, N, 3]
+        let w = &self.config.loss;
+        let lt = &self.loss_topology;
+        let vert = loss::vertex_loss(pred.clone(), target.clone());
+        let (bp, bn) = loss::penetration_targets(&pred, samples, &self.device);
+        let pen =
+            loss::penetration_loss(pred.clone(), target.clone(), bp, bn, w.pen_tolerance as f32);
+        let norm = loss::normal_loss(pred.clone(), target.clone(), lt);
+        let bend = loss::bending_loss(pred.clone(), target.clone(), lt);
+        let mut total = (vert.clone() * w.vert
+            + pen.clone() * w.pen
+            + norm.clone() * w.norm
+            + bend.clone() * w.bend)
+            * w.physics_scale;
+        let mut umc_v = 0.0;
+        if w.umc > 0.0 {
+            let umc = loss::uniform_curvature_loss(pred.clone(), target.clone(), lt);
+            umc_v = scalar(&umc);
+            total = total + umc * w.umc;
+        }
+        let dist = (pred - target).powi_scalar(2).sum_dim(2).sqrt().mean();
+        let terms = Terms {
+            total: scalar(&total),
+            vert: scalar(&vert),
+            pen: scalar(&pen),
+            norm: scalar(&norm),
+            bend: scalar(&bend),
+            umc: umc_v,
+            edist_cm: scalar(&dist) * 100.0,
+        };
+        (total, terms)
+    }
+}
+
+/// Where a run is; saved with every checkpoint.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct State {
+    /// Epoch in progress (0-based).
+    pub epoch: usize,
+    /// Batches of that epoch already trained.
+    pub batch: usize,
+    /// Optimiser steps so far.
+    pub steps: u64,
+    /// Lowest validation loss so far.
+    pub best_val: Option<f64>,
+    /// Seconds of training so far (all sessions).
+    pub seconds: f64,
+    /// Set when all epochs are done.
+    pub finished: bool,
+}
+
+/// What the run folder records about its data and garment.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct RunInfo {
+    /// Garment name.
+    pub garment: String,
+    /// Garment vertex count.
+    pub vertices: usize,
+    /// Template resolution of the dataset.
+    pub resolution: usize,
+    /// Dataset name.
+    pub dataset: String,
+    /// sha256 of the dataset's manifest file.
+    pub manifest_sha256: String,
+    /// Run this one was initialised from (fine-tuning).
+    pub init: Option<PathBuf>,
+}
+
+/// Writes `bytes` to `path` atomically.
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), LearnError> {
+    let tmp = path.with_extension("tmp");
+    let io = |e| LearnError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    };
+    std::fs::write(&tmp, bytes).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+fn ck(path: &Path) -> impl Fn(burn::store::RecordError) -> LearnError + '_ {
+    move |e| LearnError::Checkpoint {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    }
+}
+
+/// Saves a model's parameters (burnpack) atomically.
+pub fn save_model(model: &GarNet, path: &Path) -> Result<(), LearnError> {
+    let bytes = model.clone().into_record().into_bytes().map_err(ck(path))?;
+    write_atomic(path, &bytes)
+}
+
+/// Loads parameters into a model built from the same config.
+pub fn load_model(model: GarNet, path: &Path) -> Result<GarNet, LearnError> {
+    model.try_load_file(path).map_err(ck(path))
+}
+
+/// Options of one `drape train` call.
+#[derive(Debug, Clone)]
+pub struct TrainOptions {
+    /// The dataset (overrides the config's).
+    pub data: PathBuf,
+    /// The run folder.
+    pub run: PathBuf,
+    /// Initialise from this run's best checkpoint (fine-tuning).
+    pub init: Option<PathBuf>,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// Shuffled training batches of one epoch, read `shuffle_shards` shards at a time.
+fn epoch_order(data: &Dataset, config: &TrainConfig, epoch: usize) -> Vec<Vec<String>> {
+    let mut shards: Vec<String> = data
+        .manifest
+        .shards
+        .iter()
+        .filter(|s| s.split == Split::Train)
+        .map(|s| s.file.clone())
+        .collect();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(config.seed ^ (epoch as u64) << 32);
+    shards.shuffle(&mut rng);
+    shards
+        .chunks(config.shuffle_shards)
+        .map(|c| c.to_vec())
+        .collect()
+}
+
+/// Trains (or resumes) a run. Returns the final state.
+pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnError> {
+    let data = Dataset::open(&opts.data)?;
+    let device = Device::default().autodiff();
+    let setup = Setup::new(config, &data, &device);
+    let info = RunInfo {
+        garment: data.manifest.config["garment"]
+            .as_str()
+            .unwrap_or("?")
+            .to_string(),
+        vertices: setup.topology.vertices,
+        resolution: data.manifest.config["resolution"].as_u64().unwrap_or(0) as usize,
+        dataset: data.manifest.name.clone(),
+        manifest_sha256: crate::run::manifest_sha256(&opts.data)?,
+        init: opts.init.clone(),
+    };
+    crate::run::prepare_folder(&opts.run, config, &info)?;
+    let mut state: State = crate::run::read_json(&opts.run.join("state.json"))?.unwrap_or_default();
+    if state.finished {
+        return Ok(state);
+    }
+    // Model and optimiser: resume, or initialise (from scratch or from --init).
+    device.seed(config.seed);
+    let mut model = GarNet::new(&config.model, setup.params, &device);
+    let mut optim = AdamConfig::new().init();
+    let last = opts.run.join("last.bpk");
+    if last.exists() {
+        model = load_model(model, &last)?;
+        let op = opts.run.join("last-optim.bpk");
+        optim = optim.load(&op).map_err(ck(&op))?;
+    } else if let Some(init) = &opts.init {
+        model = crate::run::load_init(model, init, &info)?;
+    }
+    let total_batches_hint: usize = {
+        let n = data.count(Split::Train);
+        let n = if config.max_train_samples > 0 {
+            n.min(config.max_train_samples)
+        } else {
+            n
+        };
+        n.div_ceil(config.batch_size)
+    };
+    let bar = crate::run::progress(opts.progress, (config.epochs * total_batches_hint) as u64);
+    bar.set_position((state.epoch * total_batches_hint + state.batch) as u64);
+    let started = Instant::now();
+    let seconds_before = state.seconds;
+    let cap = config.wall_clock_minutes * 60.0;
+    let mut last_save = Instant::now();
+    let mut steps_log = crate::run::append(
+        &opts.run.join("steps.csv"),
+        &format!("epoch,batch,step,seconds,{}", Terms::HEADER),
+    )?;
+    let mut log = crate::run::append(
+        &opts.run.join("log.csv"),
+        &format!("epoch,split,samples,seconds,{}", Terms::HEADER),
+    )?;
+    while state.epoch < config.epochs {
+        let mut sum = Terms::default();
+        let mut seen = 0usize;
+        let mut batch_index = 0usize;
+        let mut used = 0usize;
+        'epoch: for group in epoch_order(&data, config, state.epoch) {
+            let mut rows = Vec::new();
+            for f in &group {
+                rows.extend(data.read_shard(f)?);
+            }
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+                config
+                    .seed
+                    .wrapping_mul(31)
+                    .wrapping_add(state.epoch as u64),
+            );
+            rows.sort_by_key(|r| r.id);
+            rows.shuffle(&mut rng);
+            for chunk in rows.chunks(config.batch_size) {
+                if config.max_train_samples > 0 && used >= config.max_train_samples {
+                    break 'epoch;
+                }
+                let chunk = if config.max_train_samples > 0 {
+                    &chunk[..chunk.len().min(config.max_train_samples - used)]
+                } else {
+                    chunk
+                };
+                used += chunk.len();
+                batch_index += 1;
+                if batch_index <= state.batch {
+                    continue; // done before an interruption
+                }
+                let prepared: Vec<Prepared> =
+                    chunk.par_iter().map(|r| setup.pre.prepare_row(r)).collect();
+                let refs: Vec<&Prepared> = prepared.iter().collect();
+                let (total, terms) = setup.losses(&model, &refs);
+                let grads = GradientsParams::from_grads(total.backward(), &model);
+                model = optim.step(config.learning_rate, model, grads);
+                state.batch = batch_index;
+                state.steps += 1;
+                state.seconds = seconds_before + started.elapsed().as_secs_f64();
+                sum.add(&terms, refs.len() as f64);
+                seen += refs.len();
+                writeln!(
+                    steps_log,
+                    "{},{},{},{:.2},{}",
+                    state.epoch,
+                    batch_index,
+                    state.steps,
+                    state.seconds,
+                    terms.csv()
+                )
+                .ok();
+                bar.inc(1);
+                bar.set_message(format!(
+                    "epoch {} loss {:.3e} vert {:.2e} pen {:.2e} norm {:.3} bend {:.2e} Edist {:.2} cm",
+                    state.epoch + 1, terms.total, terms.vert, terms.pen, terms.norm, terms.bend, terms.edist_cm
+                ));
+                let out_of_time = cap > 0.0 && state.seconds - seconds_before >= cap;
+                if out_of_time || last_save.elapsed().as_secs_f64() > 600.0 {
+                    crate::run::checkpoint(&opts.run, &model, &optim, &state)?;
+                    last_save = Instant::now();
+                }
+                if out_of_time {
+                    bar.abandon_with_message(format!(
+                        "wall-clock cap of {} min reached; run again to continue",
+                        config.wall_clock_minutes
+                    ));
+                    return Ok(state);
+                }
+            }
+        }
+        if seen > 0 {
+            sum.add(&sum.clone(), 1.0 / seen as f64 - 1.0);
+            writeln!(
+                log,
+                "{},train,{},{:.2},{}",
+                state.epoch,
+                seen,
+                state.seconds,
+                sum.csv()
+            )
+            .ok();
+        }
+        let val = evaluate(&setup, &model.valid(), &data, Split::Val)?;
+        if let Some((v, n)) = val {
+            writeln!(
+                log,
+                "{},val,{},{:.2},{}",
+                state.epoch,
+                n,
+                state.seconds,
+                v.csv()
+            )
+            .ok();
+            if state.best_val.is_none_or(|b| v.total < b) {
+                state.best_val = Some(v.total);
+                save_model(&model, &opts.run.join("best.bpk"))?;
+            }
+        } else if state.epoch + 1 == config.epochs {
+            save_model(&model, &opts.run.join("best.bpk"))?;
+        }
+        state.epoch += 1;
+        state.batch = 0;
+        state.finished = state.epoch >= config.epochs;
+        crate::run::checkpoint(&opts.run, &model, &optim, &state)?;
+        last_save = Instant::now();
+    }
+    bar.finish();
+    Ok(state)
+}
+
+/// Mean loss terms of a split (`None` if it is empty), without gradients.
+pub fn evaluate(
+    setup: &Setup,
+    model: &GarNet,
+    data: &Dataset,
+    split: Split,
+) -> Result<Option<(Terms, usize)>, LearnError> {
+    let plain = Setup {
+        graph: Graph::new(&setup.topology, &setup.device.clone().inner()),
+        loss_topology: LossTopology::new(&setup.topology, &setup.device.clone().inner()),
+        device: setup.device.clone().inner(),
+        ..setup.clone()
+    };
+    let mut sum = Terms::default();
+    let mut n = 0usize;
+    let files: Vec<String> = data
+        .manifest
+        .shards
+        .iter()
+        .filter(|s| s.split == split)
+        .map(|s| s.file.clone())
+        .collect();
+    for f in files {
+        let rows = data.read_shard(&f)?;
+        for chunk in rows.chunks(plain.config.batch_size) {
+            let prepared: Vec<Prepared> =
+                chunk.par_iter().map(|r| plain.pre.prepare_row(r)).collect();
+            let refs: Vec<&Prepared> = prepared.iter().collect();
+            let (_, t) = plain.losses(model, &refs);
+            sum.add(&t, refs.len() as f64);
+            n += refs.len();
+        }
+    }
+    if n == 0 {
+        return Ok(None);
+    }
+    sum.add(&sum.clone(), 1.0 / n as f64 - 1.0);
+    Ok(Some((sum, n)))
+}
