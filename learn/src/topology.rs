@@ -19,6 +19,13 @@ pub struct Topology {
     pub conv_dst: Vec<i64>,
     /// 1 / |N_i| (the one-ring plus the vertex itself) per vertex.
     pub inv_degree: Vec<f32>,
+    /// Padded neighbourhoods for FeaStNet: `K = max |N_i|` slots per vertex, `[N * K]`,
+    /// slot 0 the vertex itself, then its one-ring, unused slots repeating the vertex.
+    pub padded: Vec<i64>,
+    /// 1 for a used slot, 0 for padding, `[N * K]`.
+    pub padded_mask: Vec<f32>,
+    /// Slots per vertex K.
+    pub slots: usize,
     /// Mesh edges (i < j), once each.
     pub edges: Vec<[u32; 2]>,
     /// Vertex pairs exactly two edges apart (i < k), for L_bend.
@@ -63,9 +70,22 @@ impl Topology {
             }
             inv_degree.push(1.0 / (r.len() + 1) as f32);
         }
+        let slots = ring.iter().map(|r| r.len() + 1).max().unwrap_or(1);
+        let mut padded = Vec::with_capacity(vertices * slots);
+        let mut padded_mask = Vec::with_capacity(vertices * slots);
+        for (i, r) in ring.iter().enumerate() {
+            padded.push(i as i64);
+            padded.extend(r.iter().map(|&j| j as i64));
+            padded_mask.extend(std::iter::repeat_n(1.0, r.len() + 1));
+            padded.extend(std::iter::repeat_n(i as i64, slots - r.len() - 1));
+            padded_mask.extend(std::iter::repeat_n(0.0, slots - r.len() - 1));
+        }
         Self {
             vertices,
             triangles: triangles.to_vec(),
+            padded,
+            padded_mask,
+            slots,
             conv_src,
             conv_dst,
             inv_degree,
@@ -157,6 +177,9 @@ mod tests {
         assert_eq!(t.inv_degree[1], 1.0 / 3.0);
         assert_eq!(t.conv_src.len(), 4 + 2 * 5);
         assert_eq!(t.one_rings()[1], vec![0, 2]);
+        assert_eq!(t.slots, 4);
+        assert_eq!(&t.padded[4..8], &[1, 0, 2, 1]);
+        assert_eq!(&t.padded_mask[4..8], &[1.0, 1.0, 1.0, 0.0]);
     }
 
     #[test]

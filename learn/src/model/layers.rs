@@ -3,7 +3,7 @@
 use burn::module::{Module, Param};
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::tensor::activation::{leaky_relu, softmax};
-use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 
 use crate::topology::Topology;
 
@@ -37,6 +37,51 @@ impl Mlp {
     }
 }
 
+/// A linear layer on the concatenation of several inputs, computed as a sum of one linear
+/// map per input: `W [a, b, c] = W_a a + W_b b + W_c c`. Inputs may broadcast, so a
+/// per-sample feature `[B, 1, C]` joins per-vertex features `[B, N, C']` without being
+/// repeated N times (the repeat would cost N times the memory and the multiply-adds).
+#[derive(Module, Debug)]
+pub struct SplitLinear {
+    parts: Vec<Linear>,
+}
+
+impl SplitLinear {
+    /// One map per input width; the bias lives in the first.
+    pub fn new(inputs: &[usize], output: usize, device: &Device) -> Self {
+        let fan_in: usize = inputs.iter().sum();
+        let bound = (1.0 / fan_in as f64).sqrt();
+        let parts = inputs
+            .iter()
+            .enumerate()
+            .map(|(i, &d)| {
+                LinearConfig::new(d, output)
+                    .with_bias(i == 0)
+                    .with_initializer(Initializer::Uniform {
+                        min: -bound,
+                        max: bound,
+                    })
+                    .init(device)
+            })
+            .collect();
+        Self { parts }
+    }
+
+    /// # Shapes
+    /// Inputs `[B, N or 1, C_k]` -> `[B, N, output]`.
+    pub fn forward(&self, inputs: Vec<Tensor<3>>) -> Tensor<3> {
+        let mut sum: Option<Tensor<3>> = None;
+        for (l, x) in self.parts.iter().zip(inputs) {
+            let y = l.forward(x);
+            sum = Some(match sum {
+                None => y,
+                Some(s) => s + y,
+            });
+        }
+        sum.expect("at least one input")
+    }
+}
+
 /// The mesh graph of a garment as index tensors on a device.
 #[derive(Debug, Clone)]
 pub struct Graph {
@@ -48,6 +93,14 @@ pub struct Graph {
     pub inv_degree: Tensor<3>,
     /// N.
     pub vertices: usize,
+    /// Padded neighbourhood slots per vertex K.
+    pub slots: usize,
+    /// Padded neighbourhoods, `[N * K]` (see [`Topology::padded`]).
+    pub padded: Vec<i64>,
+    /// 1 for used slots, 0 for padding, `[1, N, K, 1]`.
+    pub mask: Tensor<4>,
+    /// Batch size and its flattened neighbour indices into `[B * N]` rows, cached.
+    batched: std::sync::Arc<std::sync::Mutex<Option<(usize, Tensor<1, Int>)>>>,
 }
 
 impl Graph {
@@ -62,7 +115,32 @@ impl Graph {
                 device,
             ),
             vertices: t.vertices,
+            slots: t.slots,
+            padded: t.padded.clone(),
+            mask: Tensor::from_data(
+                TensorData::new(t.padded_mask.clone(), [1, t.vertices, t.slots, 1]),
+                device,
+            ),
+            batched: Default::default(),
         }
+    }
+
+    /// Neighbour rows of the flattened `[B * N, C]` features for batch size `b`, `[B * N * K]`.
+    pub fn neighbours(&self, b: usize, device: &Device) -> Tensor<1, Int> {
+        let mut cache = self.batched.lock().expect("not poisoned");
+        if let Some((cb, t)) = cache.as_ref()
+            && *cb == b
+        {
+            return t.clone();
+        }
+        let n = self.vertices as i64;
+        let idx: Vec<i64> = (0..b as i64)
+            .flat_map(|s| self.padded.iter().map(move |&j| s * n + j))
+            .collect();
+        let len = idx.len();
+        let t = Tensor::<1, Int>::from_data(TensorData::new(idx, [len]), device);
+        *cache = Some((b, t.clone()));
+        t
     }
 }
 
@@ -74,7 +152,7 @@ impl Graph {
 /// where N_i is the one-ring of vertex i plus i itself.
 #[derive(Module, Debug)]
 pub struct FeaStConv {
-    /// W: input -> heads x output, no bias.
+    /// W: the M per-head maps stacked, heads x input -> output, no bias.
     lin: Linear,
     /// u: input -> heads, no bias.
     u: Linear,
@@ -91,7 +169,7 @@ pub struct FeaStConv {
 impl FeaStConv {
     /// A convolution from `input` to `output` features with `heads` attention heads.
     pub fn new(input: usize, output: usize, heads: usize, device: &Device) -> Self {
-        let lin = LinearConfig::new(input, heads * output)
+        let lin = LinearConfig::new(heads * input, output)
             .with_bias(false)
             .init(device);
         let u = LinearConfig::new(input, heads)
@@ -115,24 +193,31 @@ impl FeaStConv {
 
     /// # Shapes
     /// `x`: `[B, N, input]` -> `[B, N, output]`.
+    ///
+    /// Computed on padded neighbourhoods (K slots per vertex): one gather of the inputs,
+    /// `[B, N, K, input]`, then per vertex the head-weighted sums as a small batched matrix
+    /// product, `[M, K] x [K, input]`, and one linear map from `M * input` to `output`. No
+    /// scatter in the forward pass, and the gathered tensor is M times smaller than
+    /// gathering `W_m x_j`.
     pub fn forward(&self, x: Tensor<3>, g: &Graph) -> Tensor<3> {
-        let [b, n, _] = x.dims();
-        let e = g.src.dims()[0];
-        let (m, o) = (self.heads, self.output);
+        let [b, n, c] = x.dims();
+        let (m, k) = (self.heads, g.slots);
         let ux = self.u.forward(x.clone()); // [B, N, M]
-        let logits = ux.clone().select(1, g.src.clone()) - ux.select(1, g.dst.clone())
-            + self.c.val().reshape([1, 1, m]); // [B, E, M]
-        let q = softmax(logits, 2); // [B, E, M]
-        let wx = self.lin.forward(x).select(1, g.src.clone()); // [B, E, M * O]
-        let msg = (wx.reshape([b, e, m, o]) * q.unsqueeze_dim::<4>(3))
-            .sum_dim(2)
-            .reshape([b, e, o]); // [B, E, O]
-        let agg = Tensor::<3>::zeros([b, n, o], &msg.device()).select_assign(
-            1,
-            g.dst.clone(),
-            msg,
-            IndexingUpdateOp::Add,
-        ); // [B, N, O]
-        agg * g.inv_degree.clone() + self.bias.val().reshape([1, 1, o])
+        let rows = g.neighbours(b, &x.device());
+        let uj = ux
+            .clone()
+            .reshape([b * n, m])
+            .select(0, rows.clone())
+            .reshape([b, n, k, m]);
+        let logits = uj - ux.unsqueeze_dim::<4>(2) + self.c.val().reshape([1, 1, 1, m]); // [B, N, K, M]
+        let q = softmax(logits, 3) * g.mask.clone(); // [B, N, K, M], padding zeroed
+        let xj = x.reshape([b * n, c]).select(0, rows).reshape([b * n, k, c]); // [B*N, K, C]
+        let z = q
+            .reshape([b * n, k, m])
+            .swap_dims(1, 2)
+            .matmul(xj) // [B*N, M, C]
+            .reshape([b, n, m * c]);
+        let y = self.lin.forward(z); // [B, N, O]
+        y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output])
     }
 }

@@ -9,7 +9,7 @@
 
 mod layers;
 
-pub use layers::{FeaStConv, Graph, Mlp};
+pub use layers::{FeaStConv, Graph, Mlp, SplitLinear};
 
 use burn::module::Module;
 use burn::nn::{Initializer, Linear, LinearConfig};
@@ -153,10 +153,13 @@ pub struct GarNet {
     /// Garment point-wise MLP.
     garment_mlp: Mlp,
     /// Point-wise garment features + global body feature -> conv width.
-    conv_in: Linear,
+    conv_in: SplitLinear,
     /// Residual FeaStNet blocks (absent in GarNet-Naive).
     convs: Option<ConvStack>,
-    /// Fusion MLP.
+    /// First fusion layer, on [point-wise, patch-wise, global garment, global body
+    /// (, local body)] features.
+    fusion_in: SplitLinear,
+    /// The other fusion layers.
     fusion: Mlp,
     /// Last fusion layer: 3 outputs, zero at initialisation (the network starts at M).
     out: Linear,
@@ -186,17 +189,21 @@ impl GarNet {
         let body_point = c.body_mlp2[c.body_mlp2.len() - 2];
         let cg = *c.garment_mlp.last().unwrap();
         let local = matches!(c.variant, Variant::Local);
-        let fusion_in = cg + c.conv_width * 2 + global + if local { LOCAL_WIDTH } else { 0 };
+        let mut fusion_in = vec![cg, c.conv_width, c.conv_width, global];
+        if local {
+            fusion_in.push(LOCAL_WIDTH);
+        }
         Self {
             body: (c.variant != Variant::GlobalParams).then(|| BodyStream::new(c, device)),
             local_in: local.then(|| LinearConfig::new(body_point, LOCAL_WIDTH).init(device)),
             garment_mlp: Mlp::new(3, &c.garment_mlp, c.leaky_slope, device),
-            conv_in: LinearConfig::new(cg + global, c.conv_width).init(device),
+            conv_in: SplitLinear::new(&[cg, global], c.conv_width, device),
             convs: c
                 .variant
                 .has_mesh_convolutions()
                 .then(|| ConvStack::new(c, device)),
-            fusion: Mlp::new(fusion_in, &c.fusion, c.leaky_slope, device),
+            fusion_in: SplitLinear::new(&fusion_in, c.fusion[0], device),
+            fusion: Mlp::new(c.fusion[0], &c.fusion[1..], c.leaky_slope, device),
             out: LinearConfig::new(*c.fusion.last().unwrap(), 3)
                 .with_initializer(Initializer::Zeros)
                 .init(device),
@@ -227,23 +234,20 @@ impl GarNet {
             }
             None => (None, input.params.clone()), // [B, S]
         };
-        let gd = body_global.dims()[1];
-        let global_rep = body_global.unsqueeze_dim::<3>(1).expand([b, n, gd]); // [B, N, G]
+        let global = body_global.unsqueeze_dim::<3>(1); // [B, 1, G]
         // Garment stream.
         let xyz = input.warped.clone(); // [B, N, 3]
         let point = self.garment_mlp.forward(xyz.clone()); // [B, N, Cg]
         let h0 = leaky_relu(
-            self.conv_in
-                .forward(Tensor::cat(vec![point.clone(), global_rep.clone()], 2)),
+            self.conv_in.forward(vec![point.clone(), global.clone()]),
             self.slope,
         ); // [B, N, C]
         let patch = match &self.convs {
             Some(convs) => convs.forward(h0, xyz, g), // [B, N, C]
             None => h0,
         };
-        let c = patch.dims()[2];
-        let garment_global = patch.clone().max_dim(1).expand([b, n, c]); // [B, N, C]
-        let mut fused = vec![point, patch, garment_global, global_rep];
+        let garment_global = patch.clone().max_dim(1); // [B, 1, C]
+        let mut fused = vec![point, patch, garment_global, global];
         // Local body features.
         if let (Some(local_in), Some(body_point)) = (&self.local_in, body_point) {
             let [_, p, _] = body_point.dims();
@@ -263,6 +267,7 @@ impl GarNet {
                 .reshape([b, n, l]); // [B, N, L]
             fused.push(local);
         }
-        self.out.forward(self.fusion.forward(Tensor::cat(fused, 2))) // [B, N, 3]
+        let f = leaky_relu(self.fusion_in.forward(fused), self.slope); // [B, N, F0]
+        self.out.forward(self.fusion.forward(f)) // [B, N, 3]
     }
 }
