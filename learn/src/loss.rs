@@ -10,8 +10,11 @@ use glam::Vec3;
 use crate::data::{Prepared, nearest};
 use crate::topology::Topology;
 
-/// Small number keeping square roots and normalisations differentiable at zero.
+/// Small number keeping square roots differentiable at zero (squared lengths, m^2).
 const EPS: f32 = 1e-12;
+/// The same for face normals: squared doubled areas of centimetre triangles are ~1e-8 m^4,
+/// so this must be far smaller than `EPS` not to bias them.
+const EPS_NORMAL: f32 = 1e-24;
 
 /// Index tensors of a garment's faces, edges and bending pairs, on a device.
 #[derive(Debug, Clone)]
@@ -77,7 +80,7 @@ fn cross(a: Tensor<3>, b: Tensor<3>) -> Tensor<3> {
 pub fn face_normals(x: Tensor<3>, topo: &LossTopology) -> Tensor<3> {
     let [a, b, c] = topo.faces.clone().map(|f| x.clone().select(1, f));
     let n = cross(b - a.clone(), c - a);
-    n.clone() / (sq_norm(n) + EPS).sqrt()
+    n.clone() / (sq_norm(n) + EPS_NORMAL).sqrt()
 }
 
 /// L_vert (Eq. 3): mean over vertices of ||G^G_i - G^P_i||^2.

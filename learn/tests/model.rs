@@ -1,0 +1,285 @@
+//! Shapes of every block and variant, the FeaStNet convolution against its formula, the
+//! losses against hand-computed values, finite gradients, checkpoint round trips.
+
+use burn::module::Module;
+use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
+use learn::config::{ModelConfig, Variant};
+use learn::loss::{self, LossTopology};
+use learn::model::{FeaStConv, GarNet, Graph, Input};
+use learn::topology::Topology;
+
+/// A w x h grid of unit-spaced vertices, two triangles per cell.
+fn grid(w: usize, h: usize) -> (Vec<[f32; 3]>, Topology) {
+    let mut v = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            v.push([x as f32 * 0.01, y as f32 * 0.01, 0.0]);
+        }
+    }
+    let mut t = Vec::new();
+    for y in 0..h - 1 {
+        for x in 0..w - 1 {
+            let i = (y * w + x) as u32;
+            t.push([i, i + 1, i + w as u32 + 1]);
+            t.push([i, i + w as u32 + 1, i + w as u32]);
+        }
+    }
+    let topo = Topology::new(v.len(), &t);
+    (v, topo)
+}
+
+fn small_config(variant: Variant) -> ModelConfig {
+    ModelConfig {
+        variant,
+        body_points: 60,
+        body_mlp1: vec![8, 8],
+        body_mlp2: vec![16, 24],
+        stn_mlp: vec![8, 16],
+        stn_head: vec![8],
+        garment_mlp: vec![8, 12],
+        conv_width: 10,
+        conv_heads: 3,
+        conv_blocks: 2,
+        fusion: vec![16, 8],
+        local_downsample: 10,
+        local_pool_k: 4,
+        local_k: 3,
+        ..ModelConfig::default()
+    }
+}
+
+fn random_input(c: &ModelConfig, b: usize, n: usize, params: usize, device: &Device) -> Input {
+    let p = c.body_points;
+    let pd = c.local_points();
+    let idx = |len: usize, rows: usize| -> Tensor<1, Int> {
+        let v: Vec<i64> = (0..len).map(|i| ((i * 7919) % rows) as i64).collect();
+        Tensor::from_data(TensorData::new(v, [len]), device)
+    };
+    Input {
+        body: Tensor::random([b, p, 6], Distribution::Default, device),
+        params: Tensor::random([b, params], Distribution::Default, device),
+        warped: Tensor::random([b, n, 3], Distribution::Default, device),
+        pool_index: idx(b * pd * c.local_pool_k, b * p),
+        local_index: idx(b * n * c.local_k, b * pd),
+    }
+}
+
+#[test]
+fn every_variant_outputs_one_translation_per_vertex() {
+    let device = Device::default();
+    let (_, topo) = grid(6, 5);
+    let g = Graph::new(&topo, &device);
+    for variant in [
+        Variant::Naive,
+        Variant::Global,
+        Variant::Local,
+        Variant::GlobalParams,
+    ] {
+        let c = small_config(variant);
+        c.validate().unwrap();
+        let net = GarNet::new(&c, 13, &device);
+        let input = random_input(&c, 2, topo.vertices, 13, &device);
+        let out = net.forward(&input, &g);
+        assert_eq!(out.dims(), [2, 30, 3], "{variant:?}");
+        // The last layer starts at zero: an untrained network returns M (the DQS warp).
+        let max = out.abs().max().into_scalar::<f32>();
+        assert_eq!(max, 0.0, "{variant:?}");
+    }
+}
+
+#[test]
+fn feastconv_matches_its_formula() {
+    let device = Device::default();
+    let (_, topo) = grid(4, 3);
+    let g = Graph::new(&topo, &device);
+    let (cin, cout, m) = (5, 4, 3);
+    let conv = FeaStConv::new(cin, cout, m, &device);
+    let x = Tensor::<3>::random([1, topo.vertices, cin], Distribution::Default, &device);
+    let y = conv
+        .forward(x.clone(), &g)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    // Parameters as plain numbers.
+    let mut params = Vec::new();
+    struct Grab<'a>(&'a mut Vec<Vec<f32>>);
+    impl burn::module::ModuleVisitor for Grab<'_> {
+        fn visit_float<const D: usize>(&mut self, p: &burn::module::Param<Tensor<D>>) {
+            self.0
+                .push(p.val().into_data().try_to_vec::<f32>().unwrap());
+        }
+    }
+    conv.visit(&mut Grab(&mut params));
+    // Order of fields: lin.weight [M*Cin, Cout], u.weight [Cin, M], c [M], bias [Cout].
+    let (w, u, c, b) = (&params[0], &params[1], &params[2], &params[3]);
+    let xs = x.into_data().try_to_vec::<f32>().unwrap();
+    let xv = |i: usize, k: usize| xs[i * cin + k];
+    let rings = topo.one_rings();
+    for i in 0..topo.vertices {
+        let mut nb = vec![i];
+        nb.extend(rings[i].iter().map(|&j| j as usize));
+        for o in 0..cout {
+            let mut acc = 0.0f64;
+            for &j in &nb {
+                let logits: Vec<f64> = (0..m)
+                    .map(|h| {
+                        c[h] as f64
+                            + (0..cin)
+                                .map(|k| u[k * m + h] as f64 * (xv(j, k) - xv(i, k)) as f64)
+                                .sum::<f64>()
+                    })
+                    .collect();
+                let mx = logits.iter().cloned().fold(f64::MIN, f64::max);
+                let z: f64 = logits.iter().map(|l| (l - mx).exp()).sum();
+                for h in 0..m {
+                    let q = (logits[h] - mx).exp() / z;
+                    let wx: f64 = (0..cin)
+                        .map(|k| w[(h * cin + k) * cout + o] as f64 * xv(j, k) as f64)
+                        .sum();
+                    acc += q * wx;
+                }
+            }
+            let expect = acc / nb.len() as f64 + b[o] as f64;
+            let got = y[i * cout + o] as f64;
+            assert!(
+                (got - expect).abs() < 1e-4,
+                "vertex {i} out {o}: {got} vs {expect}"
+            );
+        }
+    }
+}
+
+fn tensor(v: &[[f32; 3]], device: &Device) -> Tensor<3> {
+    let flat: Vec<f32> = v.iter().flatten().copied().collect();
+    Tensor::from_data(TensorData::new(flat, [1, v.len(), 3]), device)
+}
+
+fn value(t: Tensor<1>) -> f64 {
+    t.into_scalar::<f32>() as f64
+}
+
+#[test]
+fn losses_are_zero_for_identical_meshes_and_match_hand_values() {
+    let device = Device::default();
+    let (v, topo) = grid(3, 3);
+    let lt = LossTopology::new(&topo, &device);
+    let g = tensor(&v, &device);
+    assert!(value(loss::vertex_loss(g.clone(), g.clone())).abs() < 1e-12);
+    assert!(value(loss::normal_loss(g.clone(), g.clone(), &lt)).abs() < 1e-9);
+    assert!(value(loss::bending_loss(g.clone(), g.clone(), &lt)).abs() < 1e-6);
+    assert!(value(loss::uniform_curvature_loss(g.clone(), g.clone(), &lt)).abs() < 1e-12);
+    // Shift every vertex by 3 mm in z: L_vert = 9e-6 m^2; normals and distances unchanged.
+    let shifted: Vec<[f32; 3]> = v.iter().map(|p| [p[0], p[1], p[2] + 0.003]).collect();
+    let p = tensor(&shifted, &device);
+    assert!((value(loss::vertex_loss(p.clone(), g.clone())) - 9e-6).abs() < 1e-9);
+    assert!(value(loss::normal_loss(p.clone(), g.clone(), &lt)).abs() < 1e-9);
+    assert!(value(loss::bending_loss(p, g.clone(), &lt)).abs() < 1e-6);
+    // Scale the grid by 2: every two-ring distance doubles, so L_bend is their mean length.
+    let scaled: Vec<[f32; 3]> = v.iter().map(|p| [2.0 * p[0], 2.0 * p[1], 0.0]).collect();
+    let mut mean = 0.0;
+    for [i, k] in &topo.bend_pairs {
+        let (a, b) = (v[*i as usize], v[*k as usize]);
+        mean += ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt() as f64;
+    }
+    mean /= topo.bend_pairs.len() as f64;
+    let got = value(loss::bending_loss(tensor(&scaled, &device), g.clone(), &lt));
+    assert!((got - mean).abs() < 1e-6, "{got} vs {mean}");
+    // Mirror z of a tilted mesh: a face normal (a, b, c) becomes (a, b, -c) ... instead
+    // rotate the grid 90 degrees about x: every normal turns by 90 degrees, dot 0, L_norm 1.
+    let rotated: Vec<[f32; 3]> = v.iter().map(|p| [p[0], 0.0, p[1]]).collect();
+    let got = value(loss::normal_loss(tensor(&rotated, &device), g, &lt));
+    assert!((got - 1.0).abs() < 1e-6, "{got}");
+}
+
+#[test]
+fn penetration_loss_counts_depth_inside_the_tolerance_only() {
+    let device = Device::default();
+    // Two vertices; the body point at the origin with normal +y.
+    let target = tensor(&[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], &device);
+    let pred = tensor(&[[0.0, -0.01, 0.0], [0.0, -0.2, 0.0]], &device);
+    let body = tensor(&[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], &device);
+    let normal = tensor(&[[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]], &device);
+    // Vertex 0 is 1 cm inside and within d_tol = 5 cm of its target; vertex 1 is 20 cm
+    // away from its target and so ignored: (0.01 + 0) / 2.
+    let got = value(loss::penetration_loss(pred, target, body, normal, 0.05));
+    assert!((got - 0.005).abs() < 1e-7, "{got}");
+}
+
+#[test]
+fn gradients_of_every_loss_are_finite_on_degenerate_triangles() {
+    let device = Device::default().autodiff();
+    let (v, topo) = grid(3, 3);
+    let lt = LossTopology::new(&topo, &device);
+    // Collapse a triangle to a point and make another a sliver.
+    let mut bad = v.clone();
+    bad[4] = bad[0];
+    bad[5] = [bad[2][0], bad[2][1] + 1e-7, 0.0];
+    let pred = tensor(&bad, &device).require_grad();
+    let target = tensor(&v, &device);
+    let body = tensor(&v, &device);
+    let normal = tensor(&vec![[0.0, 0.0, 1.0]; v.len()], &device);
+    let terms: Vec<(&str, Tensor<1>)> = vec![
+        ("vert", loss::vertex_loss(pred.clone(), target.clone())),
+        ("norm", loss::normal_loss(pred.clone(), target.clone(), &lt)),
+        (
+            "bend",
+            loss::bending_loss(pred.clone(), target.clone(), &lt),
+        ),
+        (
+            "umc",
+            loss::uniform_curvature_loss(pred.clone(), target.clone(), &lt),
+        ),
+        (
+            "pen",
+            loss::penetration_loss(pred.clone(), target.clone(), body, normal, 0.05),
+        ),
+    ];
+    for (name, l) in terms {
+        let grads = l.backward();
+        let g = pred.grad(&grads).expect("a gradient");
+        let data = g.into_data().try_to_vec::<f32>().unwrap();
+        assert!(data.iter().all(|x| x.is_finite()), "{name}: {data:?}");
+    }
+}
+
+#[test]
+fn a_saved_and_loaded_checkpoint_predicts_the_same() {
+    let device = Device::default();
+    let (_, topo) = grid(5, 4);
+    let g = Graph::new(&topo, &device);
+    let c = small_config(Variant::Local);
+    device.seed(3);
+    let net = GarNet::new(&c, 13, &device);
+    // Give the zero-initialised output layer weights so that predictions are not all 0.
+    let net = net.map(&mut Jitter);
+    let input = random_input(&c, 2, topo.vertices, 13, &device);
+    let before = net
+        .forward(&input, &g)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert!(before.iter().any(|&x| x != 0.0));
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("w.bpk");
+    learn::train::save_model(&net, &path).unwrap();
+    device.seed(99);
+    let fresh = GarNet::new(&c, 13, &device);
+    let loaded = learn::train::load_model(fresh, &path).unwrap();
+    let after = loaded
+        .forward(&input, &g)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert_eq!(before, after);
+}
+
+/// Adds 0.1 to every parameter.
+struct Jitter;
+impl burn::module::ModuleMapper for Jitter {
+    fn map_float<const D: usize>(
+        &mut self,
+        p: burn::module::Param<Tensor<D>>,
+    ) -> burn::module::Param<Tensor<D>> {
+        p.map(|t| t + 0.1)
+    }
+}
