@@ -33,6 +33,18 @@ fn config(dir: &Path, epochs: usize, variant: &str, extra: &str) -> std::path::P
     p
 }
 
+/// `drape train CONFIG --data DATA -o RUN [extra...]`.
+fn train(config: &Path, data: &Path, run_dir: &Path, extra: &[&std::ffi::OsStr]) -> (bool, String) {
+    run(drape()
+        .arg("train")
+        .arg(config)
+        .arg("--data")
+        .arg(data)
+        .arg("-o")
+        .arg(run_dir)
+        .args(extra))
+}
+
 #[test]
 fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     let tmp = tempfile::tempdir().unwrap();
@@ -42,13 +54,7 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
 
     let run_dir = tmp.path().join("run");
     let cfg = config(tmp.path(), 8, "local", "");
-    let (ok, text) = run(drape()
-        .arg("train")
-        .arg(&cfg)
-        .arg("--data")
-        .arg(&data)
-        .arg("-o")
-        .arg(&run_dir));
+    let (ok, text) = train(&cfg, &data, &run_dir, &[]);
     assert!(ok, "{text}");
     for f in [
         "config.toml",
@@ -80,13 +86,7 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
 
     // A finished run: the same command does nothing more.
     let steps_before = std::fs::read_to_string(run_dir.join("steps.csv")).unwrap();
-    let (ok, text) = run(drape()
-        .arg("train")
-        .arg(&cfg)
-        .arg("--data")
-        .arg(&data)
-        .arg("-o")
-        .arg(&run_dir));
+    let (ok, text) = train(&cfg, &data, &run_dir, &[]);
     assert!(ok, "{text}");
     assert_eq!(
         steps_before,
@@ -95,26 +95,18 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
 
     // Another config into the same folder is refused.
     let other = config(tmp.path(), 9, "local", "");
-    let (ok, text) = run(drape()
-        .arg("train")
-        .arg(&other)
-        .arg("--data")
-        .arg(&data)
-        .arg("-o")
-        .arg(&run_dir));
+    let (ok, text) = train(&other, &data, &run_dir, &[]);
     assert!(!ok && text.contains("another config"), "{text}");
 
     // Fine-tuning a Global network from a Local run is refused with both names.
     let global = config(tmp.path(), 1, "global", "");
-    let (ok, text) = run(drape()
-        .arg("train")
-        .arg(&global)
-        .arg("--data")
-        .arg(&data)
-        .arg("-o")
-        .arg(tmp.path().join("ft"))
-        .arg("--init")
-        .arg(&run_dir));
+    let ft = tmp.path().join("ft");
+    let (ok, text) = train(
+        &global,
+        &data,
+        &ft,
+        &["--init".as_ref(), run_dir.as_os_str()],
+    );
     assert!(
         !ok && text.contains("GarNet-Local") && text.contains("GarNet-Global"),
         "{text}"
@@ -122,9 +114,9 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
 
     // Unknown fields and out-of-range values are named.
     let bad = config(tmp.path(), 2, "local", "\nwidth = 3");
-    let (ok, text) = run(drape().arg("train").arg(&bad).arg("--data").arg(&data));
+    let (ok, text) = train(&bad, &data, &tmp.path().join("bad"), &[]);
     assert!(!ok && text.contains("width"), "{text}");
     let bad = config(tmp.path(), 0, "local", "");
-    let (ok, text) = run(drape().arg("train").arg(&bad).arg("--data").arg(&data));
+    let (ok, text) = train(&bad, &data, &tmp.path().join("bad"), &[]);
     assert!(!ok && text.contains("epochs"), "{text}");
 }

@@ -11,7 +11,9 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
 use crate::config::{ModelConfig, Variant};
 use crate::model::Input;
-use crate::topology::{farthest_point_subset, mean_edge_length, vertex_normals};
+use sim::mesh::vertex_normals;
+
+use crate::topology::{farthest_point_subset, mean_edge_length};
 
 /// One sample made ready for the network, on the CPU.
 #[derive(Debug, Clone)]

@@ -132,19 +132,6 @@ pub fn farthest_point_subset(points: &[Vec3], count: usize) -> Vec<u32> {
     chosen
 }
 
-/// Area-weighted unit vertex normals of a triangle mesh (zero for isolated vertices).
-pub fn vertex_normals(points: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
-    let mut n = vec![Vec3::ZERO; points.len()];
-    for t in triangles {
-        let [a, b, c] = t.map(|i| points[i as usize]);
-        let f = (b - a).cross(c - a);
-        for &i in t {
-            n[i as usize] += f;
-        }
-    }
-    n.into_iter().map(|v| v.normalize_or_zero()).collect()
-}
-
 /// Mean edge length of a triangle mesh (each triangle's three edges; shared edges count
 /// twice, which does not change the mean of a closed or nearly closed mesh much).
 pub fn mean_edge_length(points: &[Vec3], triangles: &[[u32; 3]]) -> f32 {
@@ -189,11 +176,8 @@ mod tests {
     }
 
     #[test]
-    fn normals_of_a_flat_quad_point_up() {
+    fn mean_edge_length_of_a_quad() {
         let pts = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, -1.0), Vec3::NEG_Z];
-        for n in vertex_normals(&pts, &quad().triangles) {
-            assert!((n - Vec3::Y).length() < 1e-6, "{n}");
-        }
         assert!(
             (mean_edge_length(&pts, &quad().triangles) - (4.0 + 2.0 * 2f32.sqrt()) / 6.0).abs()
                 < 1e-6
