@@ -164,11 +164,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest, DatasetError> {
                 path: e.path(),
                 source: err,
             })?;
-            let m: Manifest =
-                serde_json::from_slice(&text).map_err(|err| DatasetError::Corrupt {
-                    path: e.path(),
-                    reason: err.to_string(),
-                })?;
+            let m = Manifest::parse(&e.path(), &text)?;
             if *total.get_or_insert(m.parts) != m.parts {
                 return Err(DatasetError::Invalid(format!(
                     "{} is part of {} parts, others of {}",

@@ -102,6 +102,22 @@ impl Tally {
 }
 
 impl Manifest {
+    /// Parses a manifest file's bytes; a broken file or another format is named.
+    pub fn parse(path: &std::path::Path, bytes: &[u8]) -> Result<Self, crate::DatasetError> {
+        let corrupt = |reason: String| crate::DatasetError::Corrupt {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let m: Manifest = serde_json::from_slice(bytes).map_err(|e| corrupt(e.to_string()))?;
+        if m.format != MANIFEST_FORMAT {
+            return Err(corrupt(format!(
+                "format {:?}, expected {MANIFEST_FORMAT:?}",
+                m.format
+            )));
+        }
+        Ok(m)
+    }
+
     /// A manifest of finished shards.
     pub fn new(
         config: &DatasetConfig,

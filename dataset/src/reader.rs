@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use crate::DatasetError;
 use crate::config::Split;
 use crate::generate::sha256;
-use crate::manifest::{MANIFEST_FORMAT, Manifest, SampleRecord};
+use crate::manifest::{Manifest, SampleRecord};
 use crate::shard::{Row, STATIC_FILE, Static, decode_shard};
 
 /// An opened dataset.
@@ -42,17 +42,7 @@ impl Dataset {
             };
             DatasetError::Invalid(format!("cannot read {}: {e}{hint}", mp.display()))
         })?;
-        let manifest: Manifest =
-            serde_json::from_slice(&text).map_err(|e| DatasetError::Corrupt {
-                path: mp.clone(),
-                reason: e.to_string(),
-            })?;
-        if manifest.format != MANIFEST_FORMAT {
-            return Err(DatasetError::Corrupt {
-                path: mp,
-                reason: format!("format {:?}, expected {MANIFEST_FORMAT:?}", manifest.format),
-            });
-        }
+        let manifest = Manifest::parse(&mp, &text)?;
         let sp = dir.join(STATIC_FILE);
         let bytes = std::fs::read(&sp).map_err(|e| DatasetError::Io {
             path: sp.clone(),

@@ -38,24 +38,26 @@ fn main() {
     let lt = LossTopology::new(&topo, &device);
     let w = c.conv_width;
     println!(
-        "batch {b}, {n} vertices, {} FeaStNet edges, conv width {w}, {} heads",
-        topo.conv_src.len(),
+        "batch {b}, {n} vertices, {} FeaStNet edges in {} slots per vertex, conv width {w}, {} heads",
+        topo.vertices + topo.rings.iter().map(Vec::len).sum::<usize>(),
+        topo.slots,
         c.conv_heads
     );
     let conv = FeaStConv::new(w + 3, w, c.conv_heads, &device);
     let x = Tensor::<3>::random([b, n, w + 3], Distribution::Default, &device).require_grad();
+    let rows = g.rows(b, &device);
     time("FeaStConv forward", 3, || {
-        let _ = conv.forward(x.clone(), &g);
+        let _ = conv.forward(x.clone(), &g, &rows);
     });
     time("FeaStConv forward+backward", 3, || {
-        let _ = conv.forward(x.clone(), &g).sum().backward();
+        let _ = conv.forward(x.clone(), &g, &rows).sum().backward();
     });
     let h = Tensor::<3>::random([b, n, w], Distribution::Default, &device).require_grad();
-    time("gather [B,E,4C] forward+backward", 3, || {
+    time("gather [B*N*K, C] forward+backward", 3, || {
         let _ = h
             .clone()
-            .repeat_dim(2, 4)
-            .select(1, g.src.clone())
+            .reshape([b * n, w])
+            .select(0, rows.clone())
             .sum()
             .backward();
     });

@@ -106,14 +106,12 @@ impl ModelConfig {
         Self {
             variant,
             body_points: 6890,
-            body_mlp1: vec![64, 64],
             body_mlp2: vec![128, 512],
             stn_mlp: vec![64, 128, 1024],
             stn_head: vec![512, 256],
             garment_mlp: vec![64, 128],
             conv_width: 128,
             conv_heads: 8,
-            conv_blocks: 6,
             fusion: vec![256, 128, 64],
             ..Self::default()
         }

@@ -170,10 +170,6 @@ pub fn nearest(points: &[Vec3], queries: &[Vec3]) -> Vec<u32> {
     knn(points, queries, 1)
 }
 
-fn vec3s(v: &[Vec3]) -> Vec<f32> {
-    v.iter().flat_map(|p| p.to_array()).collect()
-}
-
 /// A batch on a device: the network input and, for training, the target.
 #[derive(Debug, Clone)]
 pub struct Batch {
@@ -190,22 +186,21 @@ pub fn collate(samples: &[&Prepared], config: &ModelConfig, device: &Device) -> 
     let n = samples[0].warped.len();
     let s = samples[0].params.len();
     let pd = config.local_points();
-    let flat = |f: &dyn Fn(&Prepared) -> Vec<f32>| -> Vec<f32> {
-        samples.iter().flat_map(|x| f(x)).collect()
+    let floats = |f: &dyn Fn(&Prepared) -> &[f32]| -> Vec<f32> {
+        samples.iter().flat_map(|x| f(x).iter().copied()).collect()
     };
-    let body = Tensor::<3>::from_data(
-        TensorData::new(flat(&|x| x.body.clone()), [b, p, 6]),
-        device,
-    );
-    let params =
-        Tensor::<2>::from_data(TensorData::new(flat(&|x| x.params.clone()), [b, s]), device);
-    let warped = Tensor::<3>::from_data(
-        TensorData::new(flat(&|x| vec3s(&x.warped)), [b, n, 3]),
-        device,
-    );
+    let points = |f: &dyn Fn(&Prepared) -> &[Vec3]| -> Vec<f32> {
+        samples
+            .iter()
+            .flat_map(|x| f(x).iter().flat_map(|p| p.to_array()))
+            .collect()
+    };
+    let body = Tensor::<3>::from_data(TensorData::new(floats(&|x| &x.body), [b, p, 6]), device);
+    let params = Tensor::<2>::from_data(TensorData::new(floats(&|x| &x.params), [b, s]), device);
+    let warped = Tensor::<3>::from_data(TensorData::new(points(&|x| &x.warped), [b, n, 3]), device);
     let target = samples[0].target.is_some().then(|| {
         Tensor::<3>::from_data(
-            TensorData::new(flat(&|x| vec3s(x.target.as_ref().unwrap())), [b, n, 3]),
+            TensorData::new(points(&|x| x.target.as_deref().unwrap()), [b, n, 3]),
             device,
         )
     });

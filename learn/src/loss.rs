@@ -21,9 +21,13 @@ const EPS_NORMAL: f32 = 1e-24;
 pub struct LossTopology {
     faces: [Tensor<1, Int>; 3],
     bend: [Tensor<1, Int>; 2],
-    umc_src: Tensor<1, Int>,
-    umc_dst: Tensor<1, Int>,
-    umc_inv_degree: Tensor<3>,
+    /// Padded neighbourhoods (slot 0 the vertex, then its one-ring), `[N * K]`.
+    padded: Tensor<1, Int>,
+    /// 1 for used slots, `[1, N, K, 1]`.
+    padded_mask: Tensor<4>,
+    /// 1 / |one-ring| (1 for an isolated vertex), `[1, N, 1]`.
+    inv_ring: Tensor<3>,
+    slots: usize,
 }
 
 fn column(v: impl Iterator<Item = u32>, device: &Device) -> Tensor<1, Int> {
@@ -37,22 +41,22 @@ impl LossTopology {
     pub fn new(t: &Topology, device: &Device) -> Self {
         let faces = [0, 1, 2].map(|k| column(t.triangles.iter().map(|f| f[k]), device));
         let bend = [0, 1].map(|k| column(t.bend_pairs.iter().map(|p| p[k]), device));
-        let (mut src, mut dst) = (Vec::new(), Vec::new());
-        let mut deg = vec![0.0f32; t.vertices];
-        for (&s, &d) in t.conv_src.iter().zip(&t.conv_dst) {
-            if s != d {
-                src.push(s as u32);
-                dst.push(d as u32);
-                deg[d as usize] += 1.0;
-            }
-        }
-        let inv: Vec<f32> = deg.iter().map(|&d| 1.0 / d.max(1.0)).collect();
+        let inv: Vec<f32> = t
+            .rings
+            .iter()
+            .map(|r| 1.0 / r.len().max(1) as f32)
+            .collect();
+        let (n, k) = (t.vertices, t.slots);
         Self {
             faces,
             bend,
-            umc_src: column(src.into_iter(), device),
-            umc_dst: column(dst.into_iter(), device),
-            umc_inv_degree: Tensor::from_data(TensorData::new(inv, [1, t.vertices, 1]), device),
+            padded: Tensor::from_data(TensorData::new(t.padded.clone(), [n * k]), device),
+            padded_mask: Tensor::from_data(
+                TensorData::new(t.padded_mask.clone(), [1, n, k, 1]),
+                device,
+            ),
+            inv_ring: Tensor::from_data(TensorData::new(inv, [1, n, 1]), device),
+            slots: k,
         }
     }
 }
@@ -157,14 +161,16 @@ pub fn penetration_loss(
 /// Uniform Laplacian: mean of the one-ring neighbours minus the vertex, `[B, N, 3]`.
 pub fn uniform_laplacian(x: Tensor<3>, topo: &LossTopology) -> Tensor<3> {
     let [b, n, _] = x.dims();
-    let nb = x.clone().select(1, topo.umc_src.clone()); // [B, E, 3]
-    let sum = Tensor::<3>::zeros([b, n, 3], &x.device()).select_assign(
-        1,
-        topo.umc_dst.clone(),
-        nb,
-        burn::tensor::IndexingUpdateOp::Add,
-    );
-    sum * topo.umc_inv_degree.clone() - x
+    let nb = x
+        .clone()
+        .select(1, topo.padded.clone())
+        .reshape([b, n, topo.slots, 3]); // [B, N, K, 3]
+    // Slot 0 is the vertex itself: take it out of the masked sum.
+    let ring = (nb * topo.padded_mask.clone())
+        .sum_dim(2)
+        .reshape([b, n, 3])
+        - x.clone(); // [B, N, 3]
+    ring * topo.inv_ring.clone() - x
 }
 
 /// L_UMC (Eq. 19): mean over vertices of ||delta^P_i - delta^G_i||^2 with the uniform

@@ -12,7 +12,7 @@ use serde::de::DeserializeOwned;
 use crate::LearnError;
 use crate::config::TrainConfig;
 use crate::model::GarNet;
-use crate::train::{RunInfo, State, load_model, save_model};
+use crate::train::{RunInfo, State, ck, load_model, model_bytes};
 
 fn io(path: &Path) -> impl Fn(std::io::Error) -> LearnError + '_ {
     move |e| LearnError::Io {
@@ -35,11 +35,16 @@ pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<Option<T>, LearnErr
     }
 }
 
-fn write_json(path: &Path, value: &impl Serialize) -> Result<(), LearnError> {
-    let text = serde_json::to_string_pretty(value).expect("serialisable");
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, text).map_err(io(path))?;
-    std::fs::rename(&tmp, path).map_err(io(path))
+/// Writes all files or none (`sim::io::write_all_or_nothing`), renamed in the given order.
+pub fn write_files(files: &[(&Path, &[u8])]) -> Result<(), LearnError> {
+    sim::io::write_all_or_nothing(files).map_err(|e| LearnError::Io {
+        path: e.path,
+        source: e.source,
+    })
+}
+
+fn json(value: &impl Serialize) -> Vec<u8> {
+    serde_json::to_vec_pretty(value).expect("serialisable")
 }
 
 /// sha256 of a dataset's manifest file, hex.
@@ -66,9 +71,7 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 )));
             }
         }
-        Err(_) => {
-            std::fs::write(&cp, text).map_err(io(&cp))?;
-        }
+        Err(_) => write_files(&[(&cp, text.as_bytes())])?,
     }
     let ip = run.join("run.json");
     match read_json::<RunInfo>(&ip)? {
@@ -83,7 +86,7 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
             )))
         }
         Some(_) => Ok(()),
-        None => write_json(&ip, info),
+        None => write_files(&[(&ip, &json(info))]),
     }
 }
 
@@ -126,24 +129,22 @@ pub fn open_run(run: &Path) -> Result<(TrainConfig, RunInfo), LearnError> {
     Ok((config, info))
 }
 
-/// Saves model, optimiser and state (each atomically; the state last, so a state file
-/// never points past the weights beside it).
+/// Saves model, optimiser and state, all or none; the state is renamed last, so a state
+/// file never points past the weights beside it.
 pub fn checkpoint(
     run: &Path,
     model: &GarNet,
     optim: &ModuleOptimizer,
     state: &State,
 ) -> Result<(), LearnError> {
-    save_model(model, &run.join("last.bpk"))?;
-    let op = run.join("last-optim.bpk");
-    let bytes = optim.into_bytes().map_err(|e| LearnError::Checkpoint {
-        path: op.clone(),
-        reason: e.to_string(),
-    })?;
-    let tmp = op.with_extension("tmp");
-    std::fs::write(&tmp, &*bytes).map_err(io(&op))?;
-    std::fs::rename(&tmp, &op).map_err(io(&op))?;
-    write_json(&run.join("state.json"), state)
+    let (mp, op, sp) = (
+        run.join("last.bpk"),
+        run.join("last-optim.bpk"),
+        run.join("state.json"),
+    );
+    let model = model_bytes(model, &mp)?;
+    let optim = optim.into_bytes().map_err(ck(&op))?;
+    write_files(&[(&mp, &model), (&op, &optim), (&sp, &json(state))])
 }
 
 /// Opens a CSV log for appending, writing its header if it is new.

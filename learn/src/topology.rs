@@ -1,6 +1,6 @@
 //! Fixed mesh structure shared by every sample of a garment: the FeaStNet neighbourhoods,
-//! the bending pairs, the faces; and two helpers for bodies (farthest-point subsets,
-//! vertex normals).
+//! the bending pairs, the faces; and two helpers for bodies (farthest-point subsets, mean
+//! edge length).
 
 use std::collections::BTreeSet;
 
@@ -13,14 +13,11 @@ pub struct Topology {
     pub vertices: usize,
     /// Triangles [F][3].
     pub triangles: Vec<[u32; 3]>,
-    /// FeaStNet edges j -> i over the one-ring plus the self-loop: source vertex j.
-    pub conv_src: Vec<i64>,
-    /// Destination vertex i of each FeaStNet edge.
-    pub conv_dst: Vec<i64>,
-    /// 1 / |N_i| (the one-ring plus the vertex itself) per vertex.
-    pub inv_degree: Vec<f32>,
-    /// Padded neighbourhoods for FeaStNet: `K = max |N_i|` slots per vertex, `[N * K]`,
-    /// slot 0 the vertex itself, then its one-ring, unused slots repeating the vertex.
+    /// One-ring neighbours of each vertex, ascending, without the vertex.
+    pub rings: Vec<Vec<u32>>,
+    /// Padded neighbourhoods for FeaStNet and the Laplacian: `K = max |N_i|` slots per
+    /// vertex, `[N * K]`, slot 0 the vertex itself, then its one-ring, unused slots
+    /// repeating the vertex.
     pub padded: Vec<i64>,
     /// 1 for a used slot, 0 for padding, `[N * K]`.
     pub padded_mask: Vec<f32>,
@@ -43,17 +40,10 @@ impl Topology {
                 ring[b as usize].insert(a);
             }
         }
-        let mut conv_src = Vec::new();
-        let mut conv_dst = Vec::new();
-        let mut inv_degree = Vec::with_capacity(vertices);
         let mut edges = Vec::new();
         let mut bend = BTreeSet::new();
         for (i, r) in ring.iter().enumerate() {
-            conv_src.push(i as i64);
-            conv_dst.push(i as i64);
             for &j in r {
-                conv_src.push(j as i64);
-                conv_dst.push(i as i64);
                 if (i as u32) < j {
                     edges.push([i as u32, j]);
                 }
@@ -68,12 +58,12 @@ impl Topology {
                     }
                 }
             }
-            inv_degree.push(1.0 / (r.len() + 1) as f32);
         }
-        let slots = ring.iter().map(|r| r.len() + 1).max().unwrap_or(1);
+        let rings: Vec<Vec<u32>> = ring.into_iter().map(|r| r.into_iter().collect()).collect();
+        let slots = rings.iter().map(|r| r.len() + 1).max().unwrap_or(1);
         let mut padded = Vec::with_capacity(vertices * slots);
         let mut padded_mask = Vec::with_capacity(vertices * slots);
-        for (i, r) in ring.iter().enumerate() {
+        for (i, r) in rings.iter().enumerate() {
             padded.push(i as i64);
             padded.extend(r.iter().map(|&j| j as i64));
             padded_mask.extend(std::iter::repeat_n(1.0, r.len() + 1));
@@ -83,26 +73,26 @@ impl Topology {
         Self {
             vertices,
             triangles: triangles.to_vec(),
+            rings,
             padded,
             padded_mask,
             slots,
-            conv_src,
-            conv_dst,
-            inv_degree,
             edges,
             bend_pairs: bend.into_iter().collect(),
         }
     }
 
-    /// One-ring neighbours of each vertex (without the vertex), from the FeaStNet edges.
-    pub fn one_rings(&self) -> Vec<Vec<u32>> {
-        let mut r = vec![Vec::new(); self.vertices];
-        for (&s, &d) in self.conv_src.iter().zip(&self.conv_dst) {
-            if s != d {
-                r[d as usize].push(s as u32);
-            }
-        }
-        r
+    /// 1 / |N_i| per vertex, N_i the one-ring plus the vertex itself (FeaStNet's mean).
+    pub fn inv_degree(&self) -> Vec<f32> {
+        self.rings
+            .iter()
+            .map(|r| 1.0 / (r.len() + 1) as f32)
+            .collect()
+    }
+
+    /// One-ring neighbours of each vertex (without the vertex).
+    pub fn one_rings(&self) -> &[Vec<u32>] {
+        &self.rings
     }
 }
 
@@ -160,9 +150,13 @@ mod tests {
         // 1 and 3 are the only pair two edges apart.
         assert_eq!(t.bend_pairs, vec![[1, 3]]);
         // Vertex 0 has neighbours 1, 2, 3 plus itself.
-        assert_eq!(t.inv_degree[0], 0.25);
-        assert_eq!(t.inv_degree[1], 1.0 / 3.0);
-        assert_eq!(t.conv_src.len(), 4 + 2 * 5);
+        assert_eq!(t.inv_degree()[0], 0.25);
+        assert_eq!(t.inv_degree()[1], 1.0 / 3.0);
+        // FeaStNet neighbourhoods: 4 self-loops and both directions of the 5 edges.
+        assert_eq!(
+            t.vertices + t.rings.iter().map(Vec::len).sum::<usize>(),
+            4 + 2 * 5
+        );
         assert_eq!(t.one_rings()[1], vec![0, 2]);
         assert_eq!(t.slots, 4);
         assert_eq!(&t.padded[4..8], &[1, 0, 2, 1]);

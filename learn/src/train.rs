@@ -58,6 +58,13 @@ impl Terms {
         )
     }
 
+    /// Every term divided by `n` (a sum of `n` samples to their mean).
+    fn mean_of(self, n: usize) -> Terms {
+        let mut m = Terms::default();
+        m.add(&self, 1.0 / n as f64);
+        m
+    }
+
     fn add(&mut self, o: &Terms, w: f64) {
         self.total += o.total * w;
         self.vert += o.vert * w;
@@ -180,28 +187,26 @@ pub struct RunInfo {
     pub init: Option<PathBuf>,
 }
 
-/// Writes `bytes` to `path` atomically.
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), LearnError> {
-    let tmp = path.with_extension("tmp");
-    let io = |e| LearnError::Io {
-        path: path.to_path_buf(),
-        source: e,
-    };
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
-}
-
-fn ck(path: &Path) -> impl Fn(burn::store::RecordError) -> LearnError + '_ {
+pub(crate) fn ck(path: &Path) -> impl Fn(burn::store::RecordError) -> LearnError + '_ {
     move |e| LearnError::Checkpoint {
         path: path.to_path_buf(),
         reason: e.to_string(),
     }
 }
 
+/// A model's parameters as burnpack bytes.
+pub(crate) fn model_bytes(model: &GarNet, path: &Path) -> Result<Vec<u8>, LearnError> {
+    Ok(model
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(ck(path))?
+        .to_vec())
+}
+
 /// Saves a model's parameters (burnpack) atomically.
 pub fn save_model(model: &GarNet, path: &Path) -> Result<(), LearnError> {
-    let bytes = model.clone().into_record().into_bytes().map_err(ck(path))?;
-    write_atomic(path, &bytes)
+    crate::run::write_files(&[(path, &model_bytes(model, path)?)])
 }
 
 /// Loads parameters into a model built from the same config.
@@ -368,7 +373,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             }
         }
         if seen > 0 {
-            sum.add(&sum.clone(), 1.0 / seen as f64 - 1.0);
+            let sum = sum.mean_of(seen);
             writeln!(
                 log,
                 "{},train,{},{:.2},{}",
@@ -443,6 +448,5 @@ pub fn evaluate(
     if n == 0 {
         return Ok(None);
     }
-    sum.add(&sum.clone(), 1.0 / n as f64 - 1.0);
-    Ok(Some((sum, n)))
+    Ok(Some((sum.mean_of(n), n)))
 }

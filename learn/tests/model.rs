@@ -96,7 +96,7 @@ fn feastconv_matches_its_formula() {
     let conv = FeaStConv::new(cin, cout, m, &device);
     let x = Tensor::<3>::random([1, topo.vertices, cin], Distribution::Default, &device);
     let y = conv
-        .forward(x.clone(), &g)
+        .forward(x.clone(), &g, &g.rows(1, &device))
         .into_data()
         .try_to_vec::<f32>()
         .unwrap();

@@ -82,36 +82,28 @@ impl SplitLinear {
     }
 }
 
-/// The mesh graph of a garment as index tensors on a device.
+/// The mesh graph of a garment on a device: padded neighbourhoods (see
+/// [`Topology::padded`]).
 #[derive(Debug, Clone)]
 pub struct Graph {
-    /// Source vertex j of each edge (self-loops included), `[E]`.
-    pub src: Tensor<1, Int>,
-    /// Destination vertex i of each edge, `[E]`.
-    pub dst: Tensor<1, Int>,
     /// 1 / |N_i|, `[1, N, 1]`.
     pub inv_degree: Tensor<3>,
     /// N.
     pub vertices: usize,
     /// Padded neighbourhood slots per vertex K.
     pub slots: usize,
-    /// Padded neighbourhoods, `[N * K]` (see [`Topology::padded`]).
-    pub padded: Vec<i64>,
+    /// Padded neighbourhoods, `[N * K]`.
+    padded: Vec<i64>,
     /// 1 for used slots, 0 for padding, `[1, N, K, 1]`.
     pub mask: Tensor<4>,
-    /// Batch size and its flattened neighbour indices into `[B * N]` rows, cached.
-    batched: std::sync::Arc<std::sync::Mutex<Option<(usize, Tensor<1, Int>)>>>,
 }
 
 impl Graph {
-    /// Puts a topology's FeaStNet edges on `device`.
+    /// Puts a topology's neighbourhoods on `device`.
     pub fn new(t: &Topology, device: &Device) -> Self {
-        let e = t.conv_src.len();
         Self {
-            src: Tensor::from_data(TensorData::new(t.conv_src.clone(), [e]), device),
-            dst: Tensor::from_data(TensorData::new(t.conv_dst.clone(), [e]), device),
             inv_degree: Tensor::from_data(
-                TensorData::new(t.inv_degree.clone(), [1, t.vertices, 1]),
+                TensorData::new(t.inv_degree(), [1, t.vertices, 1]),
                 device,
             ),
             vertices: t.vertices,
@@ -121,26 +113,18 @@ impl Graph {
                 TensorData::new(t.padded_mask.clone(), [1, t.vertices, t.slots, 1]),
                 device,
             ),
-            batched: Default::default(),
         }
     }
 
-    /// Neighbour rows of the flattened `[B * N, C]` features for batch size `b`, `[B * N * K]`.
-    pub fn neighbours(&self, b: usize, device: &Device) -> Tensor<1, Int> {
-        let mut cache = self.batched.lock().expect("not poisoned");
-        if let Some((cb, t)) = cache.as_ref()
-            && *cb == b
-        {
-            return t.clone();
-        }
+    /// Neighbour rows of the flattened `[B * N, C]` features for batch size `b`,
+    /// `[B * N * K]`. Made once per forward pass and shared by all convolutions.
+    pub fn rows(&self, b: usize, device: &Device) -> Tensor<1, Int> {
         let n = self.vertices as i64;
         let idx: Vec<i64> = (0..b as i64)
             .flat_map(|s| self.padded.iter().map(move |&j| s * n + j))
             .collect();
         let len = idx.len();
-        let t = Tensor::<1, Int>::from_data(TensorData::new(idx, [len]), device);
-        *cache = Some((b, t.clone()));
-        t
+        Tensor::from_data(TensorData::new(idx, [len]), device)
     }
 }
 
@@ -192,18 +176,17 @@ impl FeaStConv {
     }
 
     /// # Shapes
-    /// `x`: `[B, N, input]` -> `[B, N, output]`.
+    /// `x`: `[B, N, input]`, `rows`: [`Graph::rows`] for this B -> `[B, N, output]`.
     ///
     /// Computed on padded neighbourhoods (K slots per vertex): one gather of the inputs,
     /// `[B, N, K, input]`, then per vertex the head-weighted sums as a small batched matrix
     /// product, `[M, K] x [K, input]`, and one linear map from `M * input` to `output`. No
     /// scatter in the forward pass, and the gathered tensor is M times smaller than
     /// gathering `W_m x_j`.
-    pub fn forward(&self, x: Tensor<3>, g: &Graph) -> Tensor<3> {
+    pub fn forward(&self, x: Tensor<3>, g: &Graph, rows: &Tensor<1, Int>) -> Tensor<3> {
         let [b, n, c] = x.dims();
         let (m, k) = (self.heads, g.slots);
         let ux = self.u.forward(x.clone()); // [B, N, M]
-        let rows = g.neighbours(b, &x.device());
         let uj = ux
             .clone()
             .reshape([b * n, m])
@@ -211,7 +194,10 @@ impl FeaStConv {
             .reshape([b, n, k, m]);
         let logits = uj - ux.unsqueeze_dim::<4>(2) + self.c.val().reshape([1, 1, 1, m]); // [B, N, K, M]
         let q = softmax(logits, 3) * g.mask.clone(); // [B, N, K, M], padding zeroed
-        let xj = x.reshape([b * n, c]).select(0, rows).reshape([b * n, k, c]); // [B*N, K, C]
+        let xj = x
+            .reshape([b * n, c])
+            .select(0, rows.clone())
+            .reshape([b * n, k, c]); // [B*N, K, C]
         let z = q
             .reshape([b * n, k, m])
             .swap_dims(1, 2)

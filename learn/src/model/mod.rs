@@ -135,8 +135,9 @@ impl ConvStack {
     /// # Shapes
     /// `h`: `[B, N, C]`, `xyz`: `[B, N, 3]` -> `[B, N, C]`.
     fn forward(&self, mut h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
+        let rows = g.rows(h.dims()[0], &h.device());
         for conv in &self.blocks {
-            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g); // [B, N, C]
+            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &rows); // [B, N, C]
             h = h + leaky_relu(y, self.slope);
         }
         h

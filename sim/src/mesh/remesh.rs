@@ -880,6 +880,22 @@ impl Hem {
         self.set_tri(f1, [p1, n0, h1]);
     }
 
+    /// Puts half-edge `k` in the place of `o` in the loop `o` belongs to: its face, its
+    /// neighbours in the loop, and the face's first half-edge if that was `o`.
+    fn take_place(&mut self, k: u32, o: u32) {
+        let (op, on, of) = (
+            self.prev[o as usize],
+            self.next[o as usize],
+            self.face[o as usize],
+        );
+        self.face[k as usize] = of;
+        self.link(op, k);
+        self.link(k, on);
+        if of != NONE && self.fhe[of as usize] == o {
+            self.fhe[of as usize] = k;
+        }
+    }
+
     /// Collapses half-edge `h` (a -> b): a disappears, b moves to `p`, the triangles on the
     /// edge disappear and their other two edges merge. Only for collapses that
     /// [`Remesher::collapse_target`] allows.
@@ -898,17 +914,7 @@ impl Hem {
             let (n0, p0) = (self.next[h0 as usize], self.prev[h0 as usize]);
             let c = self.to[n0 as usize];
             let o = p0 ^ 1;
-            let (op, on, of) = (
-                self.prev[o as usize],
-                self.next[o as usize],
-                self.face[o as usize],
-            );
-            self.face[n0 as usize] = of;
-            self.link(op, n0);
-            self.link(n0, on);
-            if of != NONE && self.fhe[of as usize] == o {
-                self.fhe[of as usize] = n0;
-            }
+            self.take_place(n0, o);
             if self.vhe[c as usize] == p0 {
                 self.vhe[c as usize] = n0 ^ 1;
             }
@@ -925,17 +931,7 @@ impl Hem {
             let (n1, p1) = (self.next[h1 as usize], self.prev[h1 as usize]);
             let d = self.to[n1 as usize];
             let o = n1 ^ 1;
-            let (op, on, of) = (
-                self.prev[o as usize],
-                self.next[o as usize],
-                self.face[o as usize],
-            );
-            self.face[p1 as usize] = of;
-            self.link(op, p1);
-            self.link(p1, on);
-            if of != NONE && self.fhe[of as usize] == o {
-                self.fhe[of as usize] = p1;
-            }
+            self.take_place(p1, o);
             if self.vhe[d as usize] == o {
                 self.vhe[d as usize] = p1;
             }
