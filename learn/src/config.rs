@@ -76,6 +76,12 @@ pub struct ModelConfig {
     pub local_k: usize,
     /// Leaky ReLU slope (paper: 0.1).
     pub leaky_slope: f64,
+    /// Coordinates enter the network divided by this length, m.
+    pub length_scale: f64,
+    /// The network's raw outputs are multiplied by this length to give T^P, m.
+    pub displacement_scale: f64,
+    /// Frequency bands of the garment stream's positional encoding (0: plain xyz).
+    pub fourier_bands: usize,
 }
 
 impl Default for ModelConfig {
@@ -96,6 +102,9 @@ impl Default for ModelConfig {
             local_pool_k: 16,
             local_k: 15,
             leaky_slope: 0.1,
+            length_scale: 1.0,
+            displacement_scale: 1.0,
+            fourier_bands: 0,
         }
     }
 }

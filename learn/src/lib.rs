@@ -13,6 +13,7 @@ pub mod config;
 pub mod data;
 pub mod loss;
 pub mod model;
+pub mod predict;
 pub mod run;
 pub mod topology;
 pub mod train;

@@ -4,10 +4,10 @@
 //! over the batch, so batch size does not change its scale.
 
 use burn::tensor::activation::relu;
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
 use glam::Vec3;
 
-use crate::data::{Prepared, nearest};
+use crate::data::{Prepared, knn, nearest};
 use crate::topology::Topology;
 
 /// Small number keeping square roots differentiable at zero (squared lengths, m^2).
@@ -181,4 +181,129 @@ pub fn uniform_curvature_loss(
     topo: &LossTopology,
 ) -> Tensor<1> {
     sq_norm(uniform_laplacian(pred, topo) - uniform_laplacian(target, topo)).mean()
+}
+
+/// For every vertex of each ground truth in `targets`, its `k` nearest vertices of that
+/// ground truth (itself first), as rows of the flattened `[B * N]`, `[B * N * k]`. The
+/// L_RQ neighbourhoods: found on G^G and shared by prediction and ground truth.
+pub fn rq_neighbourhoods(targets: &[&[Vec3]], k: usize, device: &Device) -> Tensor<1, Int> {
+    let mut rows = Vec::new();
+    for (s, g) in targets.iter().enumerate() {
+        let base = (s * g.len()) as i64;
+        rows.extend(knn(g, g, k).into_iter().map(|j| base + i64::from(j)));
+    }
+    let len = rows.len();
+    Tensor::from_data(TensorData::new(rows, [len]), device)
+}
+
+/// Smallest and largest Rayleigh quotient of every vertex's neighbourhood (Eq. 10-12),
+/// `[B, N, 1]` each, m^2.
+///
+/// The neighbourhood's centred points g_j = G_j - mean give the covariance
+/// Sigma = (1/K) sum_j g_j g_j^T (one batched `[3, K] x [K, 3]` product per vertex), and
+/// RQ_j = g_j^T Sigma g_j / (g_j^T g_j); the bounds are the min and max over j. No
+/// eigendecomposition. A point at the neighbourhood's mean has no direction: the
+/// denominator carries 1e-3 tr(Sigma), so its quotient tends to 0 with a bounded gradient,
+/// and flat or collapsed neighbourhoods stay finite.
+pub fn rayleigh_bounds(x: Tensor<3>, rows: Tensor<1, Int>, k: usize) -> (Tensor<3>, Tensor<3>) {
+    let [b, n, _] = x.dims();
+    let p = x.reshape([b * n, 3]).select(0, rows).reshape([b * n, k, 3]); // [BN, K, 3]
+    let g = p.clone() - p.mean_dim(1); // [BN, K, 3]
+    let sigma = g.clone().swap_dims(1, 2).matmul(g.clone()) / k as f32; // [BN, 3, 3]
+    let trace = (g.clone() * g.clone()).sum_dim(2).mean_dim(1); // [BN, 1, 1]
+    let num = (g.clone().matmul(sigma) * g.clone()).sum_dim(2); // [BN, K, 1]
+    let den = (g.clone() * g).sum_dim(2) + trace * 1e-3 + EPS; // [BN, K, 1]
+    let rq = num / den;
+    (
+        rq.clone().min_dim(1).reshape([b, n, 1]),
+        rq.max_dim(1).reshape([b, n, 1]),
+    )
+}
+
+/// L_RQ^K (Eq. 13): mean over vertices of (RQmin^P - RQmin^G)^2 + (RQmax^P - RQmax^G)^2 on
+/// the neighbourhoods `rows` of size `k` ([`rq_neighbourhoods`]), m^4.
+pub fn rayleigh_loss(
+    pred: Tensor<3>,
+    target: Tensor<3>,
+    rows: Tensor<1, Int>,
+    k: usize,
+) -> Tensor<1> {
+    let (pmin, pmax) = rayleigh_bounds(pred, rows.clone(), k);
+    let (gmin, gmax) = rayleigh_bounds(target, rows, k);
+    let (dmin, dmax) = (pmin - gmin, pmax - gmax);
+    (dmin.clone() * dmin + dmax.clone() * dmax).mean()
+}
+
+/// Cotangents are clamped to this magnitude (angles below 5.7 degrees or above 174.3): the
+/// guard of L_MC against sliver and flat triangles.
+pub const COT_MAX: f32 = 10.0;
+/// Smallest vertex area in the mean-curvature normal, m^2 (a 0.1 mm square).
+const AREA_MIN: f32 = 1e-8;
+
+/// Cotangent mean-curvature normal of every vertex (Meyer et al. 2003; the paper's Eq. 9),
+/// `[B, N, 3]`, 1/m:
+///
+/// kappa_i = 1 / (2 A_i) sum_{j in N_i} (cot alpha_ij + cot beta_ij) (G_j - G_i),
+///
+/// with A_i the mixed (Voronoi, or for obtuse triangles a half or a quarter of the area)
+/// area of vertex i. Per triangle, the cotangent at each corner weighs the opposite edge;
+/// contributions are scattered to the vertices. Cotangents are clamped to +-[`COT_MAX`] and
+/// areas floored at 1e-8 m^2, so sliver and obtuse triangles give bounded values and
+/// gradients.
+pub fn mean_curvature_normal(x: Tensor<3>, topo: &LossTopology) -> Tensor<3> {
+    let [b, n, _] = x.dims();
+    let [ia, ib, ic] = topo.faces.clone();
+    let [pa, pb, pc] = [&ia, &ib, &ic].map(|f| x.clone().select(1, f.clone())); // [B, F, 3]
+    let dot = |u: Tensor<3>, v: Tensor<3>| (u * v).sum_dim(2); // [B, F, 1]
+    let (ab, ac, bc) = (
+        pb.clone() - pa.clone(),
+        pc.clone() - pa.clone(),
+        pc - pb.clone(),
+    );
+    let dbl = (sq_norm(cross(ab.clone(), ac.clone())) + EPS_NORMAL).sqrt(); // 2 area
+    let (da, db, dc) = (
+        dot(ab.clone(), ac.clone()),
+        dot(ab.clone().neg(), bc.clone()),
+        dot(ac.clone(), bc.clone()),
+    ); // dot products at the corners a, b, c
+    let cot = |d: Tensor<3>| (d / dbl.clone()).clamp(-COT_MAX, COT_MAX);
+    let (cot_a, cot_b, cot_c) = (cot(da.clone()), cot(db.clone()), cot(dc.clone()));
+    // Corner a: cot_c weighs edge ab, cot_b weighs edge ac; likewise b and c.
+    let ka = ab.clone() * cot_c.clone() + ac.clone() * cot_b.clone();
+    let kb = ab.clone().neg() * cot_c.clone() + bc.clone() * cot_a.clone();
+    let kc = ac.clone().neg() * cot_b.clone() - bc.clone() * cot_a.clone();
+    // Mixed areas: Voronoi in a non-obtuse triangle; else half the area at the obtuse
+    // corner and a quarter at the others.
+    let area = dbl / 2.0;
+    let (lab, lac, lbc) = (sq_norm(ab), sq_norm(ac), sq_norm(bc));
+    let obtuse = |d: &Tensor<3>| d.clone().detach().lower_elem(0.0).float(); // [B, F, 1]
+    let (oa, ob, oc) = (obtuse(&da), obtuse(&db), obtuse(&dc));
+    let any = (oa.clone() + ob.clone() + oc.clone()).clamp_max(1.0);
+    let mixed = |voronoi: Tensor<3>, own: Tensor<3>| {
+        let share = own.clone() * 0.5 + (own.neg() + 1.0) * 0.25;
+        voronoi * (any.clone().neg() + 1.0) + any.clone() * share * area.clone()
+    };
+    let area_a = mixed(
+        (lab.clone() * cot_c.clone() + lac.clone() * cot_b.clone()) / 8.0,
+        oa,
+    );
+    let area_b = mixed((lab * cot_c + lbc.clone() * cot_a.clone()) / 8.0, ob);
+    let area_c = mixed((lac * cot_b + lbc * cot_a) / 8.0, oc);
+    let add = IndexingUpdateOp::Add;
+    let sum = Tensor::<3>::zeros([b, n, 3], &x.device())
+        .select_assign(1, ia.clone(), ka, add)
+        .select_assign(1, ib.clone(), kb, add)
+        .select_assign(1, ic.clone(), kc, add);
+    let areas = Tensor::<3>::zeros([b, n, 1], &x.device())
+        .select_assign(1, ia, area_a, add)
+        .select_assign(1, ib, area_b, add)
+        .select_assign(1, ic, area_c, add)
+        .clamp_min(AREA_MIN);
+    sum / (areas * 2.0)
+}
+
+/// L_MC (Eq. 14): mean over vertices of ||kappa^P_i - kappa^G_i||^2 with the cotangent
+/// mean-curvature normal of [`mean_curvature_normal`], 1/m^2.
+pub fn mean_curvature_loss(pred: Tensor<3>, target: Tensor<3>, topo: &LossTopology) -> Tensor<1> {
+    sq_norm(mean_curvature_normal(pred, topo) - mean_curvature_normal(target, topo)).mean()
 }

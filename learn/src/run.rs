@@ -43,7 +43,7 @@ pub fn write_files(files: &[(&Path, &[u8])]) -> Result<(), LearnError> {
     })
 }
 
-fn json(value: &impl Serialize) -> Vec<u8> {
+pub(crate) fn json(value: &impl Serialize) -> Vec<u8> {
     serde_json::to_vec_pretty(value).expect("serialisable")
 }
 

@@ -41,7 +41,11 @@ pub struct Terms {
     pub norm: f64,
     /// L_bend, m.
     pub bend: f64,
-    /// L_UMC, m^2.
+    /// L_RQ^8, L_RQ^16, L_RQ^32, m^4 (0 when off).
+    pub rq: [f64; 3],
+    /// L_MC, 1/m^2 (0 when off).
+    pub mc: f64,
+    /// L_UMC, m^2 (0 when off).
     pub umc: f64,
     /// Edist, cm (Eq. 17): mean vertex distance.
     pub edist_cm: f64,
@@ -49,13 +53,28 @@ pub struct Terms {
 
 impl Terms {
     /// Column names of the CSV logs.
-    pub const HEADER: &'static str = "total,vert,pen,norm,bend,umc,edist_cm";
+    pub const HEADER: &'static str = "total,vert,pen,norm,bend,rq8,rq16,rq32,mc,umc,edist_cm";
 
     fn csv(&self) -> String {
         format!(
-            "{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.5}",
-            self.total, self.vert, self.pen, self.norm, self.bend, self.umc, self.edist_cm
+            "{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.5}",
+            self.total,
+            self.vert,
+            self.pen,
+            self.norm,
+            self.bend,
+            self.rq[0],
+            self.rq[1],
+            self.rq[2],
+            self.mc,
+            self.umc,
+            self.edist_cm
         )
+    }
+
+    /// L_p (Eq. 7) with the config's weights, before `physics_scale`.
+    pub fn physics(&self, w: &crate::config::LossWeights) -> f64 {
+        self.vert * w.vert + self.pen * w.pen + self.norm * w.norm + self.bend * w.bend
     }
 
     /// Every term divided by `n` (a sum of `n` samples to their mean).
@@ -71,6 +90,10 @@ impl Terms {
         self.pen += o.pen * w;
         self.norm += o.norm * w;
         self.bend += o.bend * w;
+        for k in 0..3 {
+            self.rq[k] += o.rq[k] * w;
+        }
+        self.mc += o.mc * w;
         self.umc += o.umc * w;
         self.edist_cm += o.edist_cm * w;
     }
@@ -95,9 +118,57 @@ pub struct Setup {
     pub loss_topology: LossTopology,
     /// Length of the shape-and-pose vector.
     pub params: usize,
+    /// Factors on the curvature weights ([`CurvatureScales`]; ones until measured).
+    pub scales: CurvatureScales,
     /// The device.
     pub device: Device,
 }
+
+/// Factors multiplying the curvature terms' weights, measured at the start of a run so
+/// that each weighted curvature term equals L_p there (`loss.rescale_curvature`). Saved in
+/// the run's `run.json`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CurvatureScales {
+    /// Of L_RQ^8, L_RQ^16, L_RQ^32.
+    pub rq: [f64; 3],
+    /// Of L_MC.
+    pub mc: f64,
+    /// Of L_UMC.
+    pub umc: f64,
+}
+
+impl Default for CurvatureScales {
+    fn default() -> Self {
+        Self {
+            rq: [1.0; 3],
+            mc: 1.0,
+            umc: 1.0,
+        }
+    }
+}
+
+impl CurvatureScales {
+    /// The factors that make each weighted curvature term of `t` equal its L_p (terms that
+    /// are off or zero keep 1).
+    pub fn measure(t: &Terms, w: &crate::config::LossWeights) -> Self {
+        let lp = t.physics(w);
+        let f = |weight: f64, value: f64| {
+            if weight > 0.0 && value > 0.0 {
+                lp / (weight * value)
+            } else {
+                1.0
+            }
+        };
+        Self {
+            rq: [0, 1, 2].map(|k| f(w.rq[k], t.rq[k])),
+            mc: f(w.mc, t.mc),
+            umc: f(w.umc, t.umc),
+        }
+    }
+}
+
+/// Neighbourhood sizes of L_RQ^8, L_RQ^16, L_RQ^32.
+pub const RQ_SIZES: [usize; 3] = [8, 16, 32];
 
 impl Setup {
     /// Builds the fixed parts for a dataset's garment.
@@ -110,6 +181,7 @@ impl Setup {
             graph: Graph::new(&topology, device),
             loss_topology: LossTopology::new(&topology, device),
             params: dataset::shard::SHAPE_FIELDS.len() + 4 * st.bones,
+            scales: CurvatureScales::default(),
             topology,
             device: device.clone(),
         }
@@ -133,11 +205,44 @@ impl Setup {
             + norm.clone() * w.norm
             + bend.clone() * w.bend)
             * w.physics_scale;
-        let mut umc_v = 0.0;
+        let mut terms = Terms::default();
+        let sc = &self.scales;
+        // L_RQ^K on the ground truth's K nearest neighbours (the first K of the largest set).
+        if let Some(kmax) = (0..3).rev().find(|&k| w.rq[k] > 0.0).map(|k| RQ_SIZES[k]) {
+            let [b, n, _] = pred.dims();
+            let targets: Vec<&[glam::Vec3]> = samples
+                .iter()
+                .map(|s| {
+                    s.target
+                        .as_deref()
+                        .expect("training samples carry their target")
+                })
+                .collect();
+            let rows = loss::rq_neighbourhoods(&targets, kmax, &self.device);
+            for k in 0..3 {
+                let kk = RQ_SIZES[k];
+                if w.rq[k] <= 0.0 {
+                    continue;
+                }
+                let r = rows
+                    .clone()
+                    .reshape([b * n, kmax])
+                    .slice([0..b * n, 0..kk])
+                    .reshape([b * n * kk]);
+                let l = loss::rayleigh_loss(pred.clone(), target.clone(), r, kk);
+                terms.rq[k] = scalar(&l);
+                total = total + l * (w.rq[k] * sc.rq[k]);
+            }
+        }
+        if w.mc > 0.0 {
+            let l = loss::mean_curvature_loss(pred.clone(), target.clone(), lt);
+            terms.mc = scalar(&l);
+            total = total + l * (w.mc * sc.mc);
+        }
         if w.umc > 0.0 {
-            let umc = loss::uniform_curvature_loss(pred.clone(), target.clone(), lt);
-            umc_v = scalar(&umc);
-            total = total + umc * w.umc;
+            let l = loss::uniform_curvature_loss(pred.clone(), target.clone(), lt);
+            terms.umc = scalar(&l);
+            total = total + l * (w.umc * sc.umc);
         }
         let dist = (pred - target).powi_scalar(2).sum_dim(2).sqrt().mean();
         let terms = Terms {
@@ -146,8 +251,8 @@ impl Setup {
             pen: scalar(&pen),
             norm: scalar(&norm),
             bend: scalar(&bend),
-            umc: umc_v,
             edist_cm: scalar(&dist) * 100.0,
+            ..terms
         };
         (total, terms)
     }
@@ -185,6 +290,9 @@ pub struct RunInfo {
     pub manifest_sha256: String,
     /// Run this one was initialised from (fine-tuning).
     pub init: Option<PathBuf>,
+    /// Curvature weight factors measured at the start of the run (`loss.rescale_curvature`).
+    #[serde(default)]
+    pub curvature_scales: Option<CurvatureScales>,
 }
 
 pub(crate) fn ck(path: &Path) -> impl Fn(burn::store::RecordError) -> LearnError + '_ {
@@ -259,6 +367,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         dataset: data.manifest.name.clone(),
         manifest_sha256: crate::run::manifest_sha256(&opts.data)?,
         init: opts.init.clone(),
+        curvature_scales: None,
     };
     crate::run::prepare_folder(&opts.run, config, &info)?;
     let mut state: State = crate::run::read_json(&opts.run.join("state.json"))?.unwrap_or_default();
@@ -276,6 +385,10 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         optim = optim.load(&op).map_err(ck(&op))?;
     } else if let Some(init) = &opts.init {
         model = crate::run::load_init(model, init, &info)?;
+    }
+    let mut setup = setup;
+    if config.loss.has_curvature() && config.loss.rescale_curvature {
+        setup.scales = curvature_scales(&setup, &model, &data, &opts.run)?;
     }
     let total_batches_hint: usize = {
         let n = data.count(Split::Train);
@@ -412,6 +525,61 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     Ok(state)
 }
 
+/// The curvature factors of a run: read from its `run.json`, or measured on the first
+/// batches of training data (at most 4) with the model as it starts, then saved there.
+fn curvature_scales(
+    setup: &Setup,
+    model: &GarNet,
+    data: &Dataset,
+    run: &Path,
+) -> Result<CurvatureScales, LearnError> {
+    let ip = run.join("run.json");
+    let mut info: RunInfo = crate::run::read_json(&ip)?
+        .ok_or_else(|| LearnError::Mismatch(format!("{} is missing", ip.display())))?;
+    if let Some(s) = info.curvature_scales {
+        return Ok(s);
+    }
+    let first = data
+        .manifest
+        .shards
+        .iter()
+        .find(|s| s.split == Split::Train)
+        .ok_or_else(|| LearnError::Config("the dataset has no training samples".into()))?;
+    let mut rows = data.read_shard(&first.file)?;
+    rows.truncate(4 * setup.config.batch_size);
+    let (sum, n) = mean_terms(&plain(setup), &model.valid(), &rows);
+    let t = sum.mean_of(n);
+    let scales = CurvatureScales::measure(&t, &setup.config.loss);
+    info.curvature_scales = Some(scales);
+    crate::run::write_files(&[(&ip, &crate::run::json(&info))])?;
+    Ok(scales)
+}
+
+/// The same setup on the plain (non-autodiff) device.
+fn plain(setup: &Setup) -> Setup {
+    let device = setup.device.clone().inner();
+    Setup {
+        graph: Graph::new(&setup.topology, &device),
+        loss_topology: LossTopology::new(&setup.topology, &device),
+        device,
+        ..setup.clone()
+    }
+}
+
+/// Sum of the loss terms of `rows` (weighted by samples) and their count, no gradients.
+fn mean_terms(plain: &Setup, model: &GarNet, rows: &[dataset::shard::Row]) -> (Terms, usize) {
+    let mut sum = Terms::default();
+    let mut n = 0;
+    for chunk in rows.chunks(plain.config.batch_size) {
+        let prepared: Vec<Prepared> = chunk.par_iter().map(|r| plain.pre.prepare_row(r)).collect();
+        let refs: Vec<&Prepared> = prepared.iter().collect();
+        let (_, t) = plain.losses(model, &refs);
+        sum.add(&t, refs.len() as f64);
+        n += refs.len();
+    }
+    (sum, n)
+}
+
 /// Mean loss terms of a split (`None` if it is empty), without gradients.
 pub fn evaluate(
     setup: &Setup,
@@ -419,12 +587,7 @@ pub fn evaluate(
     data: &Dataset,
     split: Split,
 ) -> Result<Option<(Terms, usize)>, LearnError> {
-    let plain = Setup {
-        graph: Graph::new(&setup.topology, &setup.device.clone().inner()),
-        loss_topology: LossTopology::new(&setup.topology, &setup.device.clone().inner()),
-        device: setup.device.clone().inner(),
-        ..setup.clone()
-    };
+    let plain = plain(setup);
     let mut sum = Terms::default();
     let mut n = 0usize;
     let files: Vec<String> = data
@@ -435,15 +598,9 @@ pub fn evaluate(
         .map(|s| s.file.clone())
         .collect();
     for f in files {
-        let rows = data.read_shard(&f)?;
-        for chunk in rows.chunks(plain.config.batch_size) {
-            let prepared: Vec<Prepared> =
-                chunk.par_iter().map(|r| plain.pre.prepare_row(r)).collect();
-            let refs: Vec<&Prepared> = prepared.iter().collect();
-            let (_, t) = plain.losses(model, &refs);
-            sum.add(&t, refs.len() as f64);
-            n += refs.len();
-        }
+        let (s, k) = mean_terms(&plain, model, &data.read_shard(&f)?);
+        sum.add(&s, 1.0);
+        n += k;
     }
     if n == 0 {
         return Ok(None);

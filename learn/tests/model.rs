@@ -191,6 +191,108 @@ fn losses_are_zero_for_identical_meshes_and_match_hand_values() {
     assert!((got - 1.0).abs() < 1e-6, "{got}");
 }
 
+/// Four points of one neighbourhood, shared by all four vertices: rows `[N * K]`.
+fn cross_neighbourhood(a: f32, b: f32, device: &Device) -> (Tensor<3>, Tensor<1, Int>) {
+    let x = tensor(
+        &[[a, 0.0, 0.0], [-a, 0.0, 0.0], [0.0, b, 0.0], [0.0, -b, 0.0]],
+        device,
+    );
+    let rows: Vec<i64> = (0..4).flat_map(|_| 0..4).collect();
+    (x, Tensor::from_data(TensorData::new(rows, [16]), device))
+}
+
+#[test]
+fn rayleigh_quotients_bound_the_covariance_and_l_rq_matches_hand_values() {
+    let device = Device::default();
+    // Points (+-a, 0, 0), (0, +-b, 0): mean 0, Sigma = diag(a^2 / 2, b^2 / 2, 0), tr = the
+    // mean squared norm (a^2 + b^2) / 2. RQ of (a, 0, 0) is a^4 / 2 / (a^2 + 1e-3 tr).
+    let (a, b) = (0.02f64, 0.01f64);
+    let (x, rows) = cross_neighbourhood(a as f32, b as f32, &device);
+    let (lo, hi) = loss::rayleigh_bounds(x.clone(), rows.clone(), 4);
+    let tr = (a * a + b * b) / 2.0;
+    let want_hi = a.powi(4) / 2.0 / (a * a + 1e-3 * tr);
+    let want_lo = b.powi(4) / 2.0 / (b * b + 1e-3 * tr);
+    let (lo, hi) = (
+        lo.into_data().try_to_vec::<f32>().unwrap(),
+        hi.into_data().try_to_vec::<f32>().unwrap(),
+    );
+    for (l, h) in lo.iter().zip(&hi) {
+        assert!(
+            (*l as f64 - want_lo).abs() < 1e-3 * want_lo,
+            "{l} vs {want_lo}"
+        );
+        assert!(
+            (*h as f64 - want_hi).abs() < 1e-3 * want_hi,
+            "{h} vs {want_hi}"
+        );
+    }
+    assert!(value(loss::rayleigh_loss(x.clone(), x.clone(), rows.clone(), 4)).abs() < 1e-20);
+    // Doubling the points multiplies every quotient by 4: L_RQ = (3 lo)^2 + (3 hi)^2.
+    let got = value(loss::rayleigh_loss(x.clone() * 2.0, x, rows, 4));
+    let want = 9.0 * (want_lo * want_lo + want_hi * want_hi);
+    assert!((got - want).abs() < 1e-3 * want, "{got} vs {want}");
+}
+
+/// A regular octahedron of radius r: 6 vertices, 8 equilateral faces, outward winding.
+fn octahedron(r: f32) -> (Vec<[f32; 3]>, Topology) {
+    let v = vec![
+        [r, 0.0, 0.0],
+        [-r, 0.0, 0.0],
+        [0.0, r, 0.0],
+        [0.0, -r, 0.0],
+        [0.0, 0.0, r],
+        [0.0, 0.0, -r],
+    ];
+    let t = vec![
+        [0, 2, 4],
+        [2, 1, 4],
+        [1, 3, 4],
+        [3, 0, 4],
+        [2, 0, 5],
+        [1, 2, 5],
+        [3, 1, 5],
+        [0, 3, 5],
+    ];
+    (v, Topology::new(6, &t))
+}
+
+#[test]
+fn mean_curvature_normal_and_l_mc_match_hand_values() {
+    let device = Device::default();
+    // Octahedron vertex: four 60-degree corners opposite each edge, weight 2 cot 60 per
+    // edge, sum of (x_j - x_i) = -4 r n; Voronoi area 4 * r^2 / (2 sqrt 3). So
+    // kappa = -(8 r / sqrt 3) n / (4 r^2 / sqrt 3) = -(2 / r) n: 40 / m at r = 5 cm.
+    let (v, topo) = octahedron(0.05);
+    let lt = LossTopology::new(&topo, &device);
+    let x = tensor(&v, &device);
+    let k = loss::mean_curvature_normal(x.clone(), &lt)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    for (i, p) in v.iter().enumerate() {
+        for c in 0..3 {
+            let want = -40.0 * p[c] / 0.05;
+            assert!(
+                (k[3 * i + c] - want).abs() < 1e-3,
+                "vertex {i}: {:?}",
+                &k[3 * i..3 * i + 3]
+            );
+        }
+    }
+    // A flat grid has no mean curvature at its interior vertex.
+    let (g, gt) = grid(3, 3);
+    let kg = loss::mean_curvature_normal(tensor(&g, &device), &LossTopology::new(&gt, &device))
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert!(kg[12..15].iter().all(|c| c.abs() < 1e-3), "{kg:?}");
+    // Radius 5 cm against 10 cm: |40 - 20|^2 = 400 / m^2 at every vertex.
+    assert!(value(loss::mean_curvature_loss(x.clone(), x.clone(), &lt)).abs() < 1e-9);
+    let (v2, _) = octahedron(0.1);
+    let got = value(loss::mean_curvature_loss(x, tensor(&v2, &device), &lt));
+    assert!((got - 400.0).abs() < 0.05, "{got}");
+}
+
 #[test]
 fn penetration_loss_counts_depth_inside_the_tolerance_only() {
     let device = Device::default();
@@ -218,6 +320,8 @@ fn gradients_of_every_loss_are_finite_on_degenerate_triangles() {
     let target = tensor(&v, &device);
     let body = tensor(&v, &device);
     let normal = tensor(&vec![[0.0, 0.0, 1.0]; v.len()], &device);
+    let flat: Vec<glam::Vec3> = v.iter().map(|p| glam::Vec3::from_array(*p)).collect();
+    let rq_rows = loss::rq_neighbourhoods(&[&flat], 8, &device);
     let terms: Vec<(&str, Tensor<1>)> = vec![
         ("vert", loss::vertex_loss(pred.clone(), target.clone())),
         ("norm", loss::normal_loss(pred.clone(), target.clone(), &lt)),
@@ -232,6 +336,15 @@ fn gradients_of_every_loss_are_finite_on_degenerate_triangles() {
         (
             "pen",
             loss::penetration_loss(pred.clone(), target.clone(), body, normal, 0.05),
+        ),
+        (
+            "mc",
+            loss::mean_curvature_loss(pred.clone(), target.clone(), &lt),
+        ),
+        // The target grid is flat: every neighbourhood's covariance is singular.
+        (
+            "rq",
+            loss::rayleigh_loss(pred.clone(), target.clone(), rq_rows.clone(), 8),
         ),
     ];
     for (name, l) in terms {

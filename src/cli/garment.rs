@@ -138,7 +138,7 @@ pub fn render(
     )?)
 }
 
-fn write_outputs(
+pub fn write_outputs(
     mesh: &TriMesh,
     header: &str,
     output: Option<&Path>,

@@ -4,7 +4,14 @@ use std::path::PathBuf;
 
 use clap::Args;
 use learn::config::TrainConfig;
+use learn::predict::Predictor;
 use learn::train::{TrainOptions, train};
+use sim::body::ShapeParams;
+use sim::mesh::TriMesh;
+
+use super::body::{ShapeArgs, load};
+use super::garment::{render, template, write_outputs};
+use super::{Context, pose_spec};
 
 /// `drape train`.
 #[derive(Debug, Args)]
@@ -65,5 +72,79 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             state.seconds
         );
     }
+    Ok(())
+}
+
+/// `drape predict`.
+#[derive(Debug, Args)]
+pub struct PredictArgs {
+    /// Run folder of a trained network (`drape train -o`); its best weights are used.
+    #[arg(long = "model", value_name = "RUN_DIR")]
+    run: PathBuf,
+    #[command(flatten)]
+    shape: ShapeArgs,
+    /// Target pose (as for `drape body --pose`).
+    #[arg(long, default_value = "rest", value_name = "SPEC")]
+    pose: String,
+    /// Output OBJ of the predicted drape.
+    #[arg(short = 'o', long, value_name = "FILE.obj")]
+    output: PathBuf,
+    /// Also render it on the posed body.
+    #[arg(long, value_name = "FILE.png")]
+    png: Option<PathBuf>,
+}
+
+/// Runs `drape predict`: `G^P = M + T^P` with `M = dqs(M0, body)`.
+pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
+    let t0 = std::time::Instant::now();
+    let (_, info) = learn::run::open_run(&args.run)?;
+    let params = args.shape.params()?;
+    let (model, library) = load(ctx)?;
+    let canonical = model.shape(&ShapeParams::default())?;
+    let target = model.shape(&params)?;
+    let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
+    let t = template(ctx, &info.garment, Some(info.resolution), &model)?;
+    let statics = dataset::shard::Static {
+        garment_vertices: t.mesh.vertices.clone(),
+        garment_triangles: t.mesh.triangles.clone(),
+        body_triangles: model.triangles.clone(),
+        canonical_body: canonical.vertices.clone(),
+        bones: resolved.pose.rotations.len(),
+    };
+    let net = Predictor::open(&args.run, &statics)?;
+    let loaded = t0.elapsed().as_secs_f64();
+    let t1 = std::time::Instant::now();
+    let posed = target.pose(&resolved.pose);
+    let warped = t.warp(&canonical, &target, &posed);
+    let mut p: Vec<f32> = params.named().map(|(_, v)| v).to_vec();
+    for q in &resolved.pose.rotations {
+        p.extend_from_slice(&q.to_array());
+    }
+    let x = net.prepare(&posed.vertices, resolved.pose.root_translation, p, &warped);
+    let pred = net.predict(&[&x]).pop().expect("one prediction");
+    let seconds = t1.elapsed().as_secs_f64();
+    let mesh = TriMesh::new(pred, t.mesh.triangles.clone());
+    let image = match &args.png {
+        Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &mesh)?)),
+        None => None,
+    };
+    let header = format!(
+        "drape predict: {} ({}) from {}, pose {}",
+        info.garment,
+        net.config.model.variant.paper_name(),
+        args.run.display(),
+        resolved.description
+    );
+    write_outputs(&mesh, &header, Some(&args.output), image)?;
+    println!(
+        "{} ({}, {} vertices): pose {}; warp + network {:.3} s (loading {:.2} s) -> {}",
+        info.garment,
+        net.config.model.variant.paper_name(),
+        mesh.vertices.len(),
+        resolved.description,
+        seconds,
+        loaded,
+        args.output.display()
+    );
     Ok(())
 }

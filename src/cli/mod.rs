@@ -50,6 +50,9 @@ pub enum Command {
     /// Train a GarNet network (Naive, Global, Local, Global-Params) on a dataset; resumes;
     /// `--init` fine-tunes from another run.
     Train(learn::TrainArgs),
+    /// Drape a garment with a trained network: the DQS warp onto a shaped, posed body, then
+    /// the network (the run folder knows its garment).
+    Predict(Box<learn::PredictArgs>),
 }
 
 /// Options every command shares.
@@ -78,5 +81,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Gen(args) => data::gen_run(args, &ctx),
         Command::Data(args) => data::data_run(args, &ctx),
         Command::Train(args) => learn::run(args),
+        Command::Predict(args) => learn::predict(*args, &ctx),
     }
 }

@@ -1,0 +1,134 @@
+//! Inference: a run folder's best weights turned into drapes. The batch API
+//! ([`Predictor::predict`]) is what `drape predict` and the evaluation call.
+
+use std::path::Path;
+use std::time::Instant;
+
+use burn::tensor::Device;
+use dataset::shard::{Row, Static};
+use glam::Vec3;
+
+use crate::LearnError;
+use crate::config::TrainConfig;
+use crate::data::{Prepared, Preprocessor, collate, row_params};
+use crate::model::{GarNet, Graph};
+use crate::run::open_run;
+use crate::topology::Topology;
+use crate::train::{RunInfo, load_model};
+
+/// A trained network ready to drape its garment, on the plain (no autodiff) device.
+#[derive(Debug)]
+pub struct Predictor {
+    /// The run's training config (model widths included).
+    pub config: TrainConfig,
+    /// The run's garment and dataset.
+    pub info: RunInfo,
+    model: GarNet,
+    pre: Preprocessor,
+    graph: Graph,
+    device: Device,
+}
+
+/// Where the time of one [`Predictor::predict`] call went, s.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Timing {
+    /// Inputs: root-relative coordinates, body normals, k-NN searches (GarNet-Local).
+    pub inputs: f64,
+    /// Both streams and the fusion, read back to the CPU.
+    pub network: f64,
+}
+
+impl Predictor {
+    /// Loads `run`'s best weights for the garment and body described by `statics` (the
+    /// dataset's static file, or the template and body model). Refuses a garment whose
+    /// vertex count is not the run's.
+    pub fn open(run: &Path, statics: &Static) -> Result<Self, LearnError> {
+        let (config, info) = open_run(run)?;
+        let n = statics.garment_vertices.len();
+        if n != info.vertices {
+            return Err(LearnError::Mismatch(format!(
+                "{} was trained on {} with {} vertices; this garment has {n}",
+                run.display(),
+                info.garment,
+                info.vertices
+            )));
+        }
+        let best = run.join("best.bpk");
+        if !best.exists() {
+            return Err(LearnError::Mismatch(format!(
+                "{} has no best.bpk yet: train at least one epoch",
+                run.display()
+            )));
+        }
+        let device = Device::default();
+        let params = dataset::shard::SHAPE_FIELDS.len() + 4 * statics.bones;
+        let model = load_model(GarNet::new(&config.model, params, &device), &best)?;
+        let topology = Topology::new(n, &statics.garment_triangles);
+        Ok(Self {
+            pre: Preprocessor::new(statics, &config.model, config.loss.pen_push_out),
+            graph: Graph::new(&topology, &device),
+            model,
+            config,
+            info,
+            device,
+        })
+    }
+
+    /// Prepares one body and its DQS-warped garment (world coordinates; `root` is the
+    /// body's root joint; `params` the shape parameters then the pose quaternions).
+    pub fn prepare(
+        &self,
+        body: &[Vec3],
+        root: Vec3,
+        params: Vec<f32>,
+        warped: &[Vec3],
+    ) -> Prepared {
+        self.pre.prepare(0, body, root, params, warped, None)
+    }
+
+    /// Prepares a dataset row (its simulated garment is ignored).
+    pub fn prepare_row(&self, row: &Row) -> Prepared {
+        self.pre.prepare(
+            row.id,
+            &row.body,
+            row.root,
+            row_params(row),
+            &row.warped,
+            None,
+        )
+    }
+
+    /// G^P = M + T^P for every sample, in world coordinates, as one batch.
+    pub fn predict(&self, samples: &[&Prepared]) -> Vec<Vec<Vec3>> {
+        let batch = collate(samples, &self.config.model, &self.device);
+        let t = self.model.forward(&batch.input, &self.graph); // [B, N, 3]
+        let v = t
+            .into_data()
+            .try_into_vec::<f32>()
+            .expect("f32 predictions");
+        let n = samples[0].warped.len();
+        samples
+            .iter()
+            .enumerate()
+            .map(|(s, x)| {
+                x.warped
+                    .iter()
+                    .zip(v[s * n * 3..(s + 1) * n * 3].chunks_exact(3))
+                    .map(|(m, d)| *m + Vec3::from_slice(d) + x.root)
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// [`Predictor::predict`] from rows, timed: inputs (k-NN included) and network.
+    pub fn predict_rows(&self, rows: &[Row]) -> (Vec<Vec<Vec3>>, Timing) {
+        let t0 = Instant::now();
+        let prepared: Vec<Prepared> = rows.iter().map(|r| self.prepare_row(r)).collect();
+        let inputs = t0.elapsed().as_secs_f64();
+        let refs: Vec<&Prepared> = prepared.iter().collect();
+        let t1 = Instant::now();
+        let out = self.predict(&refs);
+        let network = t1.elapsed().as_secs_f64();
+        (out, Timing { inputs, network })
+    }
+}
