@@ -76,12 +76,10 @@ pub struct ModelConfig {
     pub local_k: usize,
     /// Leaky ReLU slope (paper: 0.1).
     pub leaky_slope: f64,
-    /// Coordinates enter the network divided by this length, m.
+    /// Coordinates enter the network divided by this length, m (default 0.1: a body spans
+    /// about +-10 units). The paper feeds metres; in metres this network fits about a third
+    /// more slowly (docs/learn.md).
     pub length_scale: f64,
-    /// The network's raw outputs are multiplied by this length to give T^P, m.
-    pub displacement_scale: f64,
-    /// Frequency bands of the garment stream's positional encoding (0: plain xyz).
-    pub fourier_bands: usize,
 }
 
 impl Default for ModelConfig {
@@ -102,9 +100,7 @@ impl Default for ModelConfig {
             local_pool_k: 16,
             local_k: 15,
             leaky_slope: 0.1,
-            length_scale: 1.0,
-            displacement_scale: 1.0,
-            fourier_bands: 0,
+            length_scale: 0.1,
         }
     }
 }
@@ -165,6 +161,12 @@ impl ModelConfig {
                 self.local_k
             ));
         }
+        if !(self.length_scale > 0.0 && self.length_scale.is_finite()) {
+            return bad(format!(
+                "model.length_scale = {} (a positive length, m)",
+                self.length_scale
+            ));
+        }
         if !(0.0..1.0).contains(&self.leaky_slope) {
             return bad(format!("model.leaky_slope = {} (0 to 1)", self.leaky_slope));
         }
@@ -197,8 +199,10 @@ pub struct LossWeights {
     pub mc: f64,
     /// Weight of L_UMC (0 off).
     pub umc: f64,
-    /// Rescale each curvature term so that it equals L_p on the first batch of fine-tuning
-    /// (default true): the paper's weights were tuned for 10k-vertex SMPL garments.
+    /// Rescale the curvature terms at the start of the run (default true): the paper's
+    /// weights were tuned for 10k-vertex SMPL garments in its units. The weighted curvature
+    /// terms then sum to `physics_scale * L_p` on the first batches, each its configured
+    /// weight's share (`train::CurvatureScales`); the factors go to `run.json`.
     pub rescale_curvature: bool,
     /// Distance tolerance d_tol of L_pen, m (paper 0.05).
     pub pen_tolerance: f64,
@@ -251,7 +255,12 @@ pub struct TrainConfig {
     /// Adam learning rate (paper 1e-3).
     #[serde(default = "default_lr")]
     pub learning_rate: f64,
-    /// Use at most this many training samples (0: all); for overfitting tests.
+    /// If set, the learning rate decays from `learning_rate` to this value over the run
+    /// along a half cosine (default: constant, as in the paper).
+    #[serde(default)]
+    pub learning_rate_end: Option<f64>,
+    /// Train on only this many samples, the same every epoch: the lowest ids of the
+    /// training split (0: all); for overfitting tests.
     #[serde(default)]
     pub max_train_samples: usize,
     /// Stop after this many minutes of training, with checkpoints saved (0: no cap).
@@ -294,6 +303,17 @@ impl TrainConfig {
         Ok(c)
     }
 
+    /// The learning rate after `step` of `total` optimiser steps.
+    pub fn rate_at(&self, step: u64, total: u64) -> f64 {
+        match self.learning_rate_end {
+            None => self.learning_rate,
+            Some(end) => {
+                let t = (step as f64 / total.max(1) as f64).min(1.0);
+                end + (self.learning_rate - end) * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())
+            }
+        }
+    }
+
     /// Refuses values out of range.
     pub fn validate(&self) -> Result<(), LearnError> {
         let bad = |m: String| Err(LearnError::Config(m));
@@ -305,6 +325,13 @@ impl TrainConfig {
         }
         if !(self.learning_rate > 0.0 && self.learning_rate < 1.0) {
             return bad(format!("learning_rate = {} (0 to 1)", self.learning_rate));
+        }
+        if let Some(end) = self.learning_rate_end
+            && !(end > 0.0 && end <= self.learning_rate)
+        {
+            return bad(format!(
+                "learning_rate_end = {end} (above 0, at most learning_rate)"
+            ));
         }
         if self.shuffle_shards == 0 {
             return bad("shuffle_shards must be at least 1".into());

@@ -60,18 +60,41 @@ impl Predictor {
                 run.display()
             )));
         }
+        let mut p = Self::untrained(&config, statics);
+        p.model = load_model(p.model, &best)?;
+        p.info = info;
+        Ok(p)
+    }
+
+    /// A freshly initialised network of `config` for `statics`' garment (for timing: the
+    /// cost of a forward pass does not depend on the weights).
+    pub fn untrained(config: &TrainConfig, statics: &Static) -> Self {
         let device = Device::default();
+        device.seed(config.seed);
         let params = dataset::shard::SHAPE_FIELDS.len() + 4 * statics.bones;
-        let model = load_model(GarNet::new(&config.model, params, &device), &best)?;
+        let n = statics.garment_vertices.len();
         let topology = Topology::new(n, &statics.garment_triangles);
-        Ok(Self {
+        Self {
             pre: Preprocessor::new(statics, &config.model, config.loss.pen_push_out),
             graph: Graph::new(&topology, &device),
-            model,
-            config,
-            info,
+            model: GarNet::new(&config.model, params, &device),
+            config: config.clone(),
+            info: RunInfo {
+                garment: String::new(),
+                vertices: n,
+                resolution: 0,
+                dataset: String::new(),
+                manifest_sha256: String::new(),
+                init: None,
+                curvature_scales: None,
+            },
             device,
-        })
+        }
+    }
+
+    /// Trainable parameters of the network.
+    pub fn parameters(&self) -> usize {
+        burn::module::Module::num_params(&self.model)
     }
 
     /// Prepares one body and its DQS-warped garment (world coordinates; `root` is the

@@ -124,9 +124,11 @@ pub struct Setup {
     pub device: Device,
 }
 
-/// Factors multiplying the curvature terms' weights, measured at the start of a run so
-/// that each weighted curvature term equals L_p there (`loss.rescale_curvature`). Saved in
-/// the run's `run.json`.
+/// Factors multiplying the curvature terms' weights, measured at the start of a run
+/// (`loss.rescale_curvature`): together the weighted curvature terms then equal the weighted
+/// physics term `physics_scale * L_p`, shared among them in proportion to their configured
+/// weights (so the paper's 500 : 50 : 10 for L_RQ^8 : L_RQ^16 : L_RQ^32 still holds at the
+/// start). Saved in the run's `run.json`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CurvatureScales {
     /// Of L_RQ^8, L_RQ^16, L_RQ^32.
@@ -148,13 +150,14 @@ impl Default for CurvatureScales {
 }
 
 impl CurvatureScales {
-    /// The factors that make each weighted curvature term of `t` equal its L_p (terms that
-    /// are off or zero keep 1).
+    /// The factors for the mean terms `t` of the first batches: weighted term k becomes
+    /// `physics_scale * L_p * w_k / sum(w)`. Terms that are off or zero keep 1.
     pub fn measure(t: &Terms, w: &crate::config::LossWeights) -> Self {
-        let lp = t.physics(w);
+        let budget = w.physics_scale * t.physics(w);
+        let sum_w: f64 = w.rq.iter().sum::<f64>() + w.mc + w.umc;
         let f = |weight: f64, value: f64| {
             if weight > 0.0 && value > 0.0 {
-                lp / (weight * value)
+                budget / (sum_w * value)
             } else {
                 1.0
             }
@@ -386,6 +389,19 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     } else if let Some(init) = &opts.init {
         model = crate::run::load_init(model, init, &info)?;
     }
+    // max_train_samples: the same samples every epoch, the lowest ids of the split.
+    let subset: Option<std::collections::HashSet<u64>> =
+        (config.max_train_samples > 0).then(|| {
+            let mut ids: Vec<u64> = data
+                .manifest
+                .samples()
+                .filter(|s| s.plan.split == Split::Train && s.ok)
+                .map(|s| s.plan.id)
+                .collect();
+            ids.sort_unstable();
+            ids.truncate(config.max_train_samples);
+            ids.into_iter().collect()
+        });
     let mut setup = setup;
     if config.loss.has_curvature() && config.loss.rescale_curvature {
         setup.scales = curvature_scales(&setup, &model, &data, &opts.run)?;
@@ -417,11 +433,13 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         let mut sum = Terms::default();
         let mut seen = 0usize;
         let mut batch_index = 0usize;
-        let mut used = 0usize;
-        'epoch: for group in epoch_order(&data, config, state.epoch) {
+        for group in epoch_order(&data, config, state.epoch) {
             let mut rows = Vec::new();
             for f in &group {
                 rows.extend(data.read_shard(f)?);
+            }
+            if let Some(keep) = &subset {
+                rows.retain(|r| keep.contains(&r.id));
             }
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
                 config
@@ -432,15 +450,6 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             rows.sort_by_key(|r| r.id);
             rows.shuffle(&mut rng);
             for chunk in rows.chunks(config.batch_size) {
-                if config.max_train_samples > 0 && used >= config.max_train_samples {
-                    break 'epoch;
-                }
-                let chunk = if config.max_train_samples > 0 {
-                    &chunk[..chunk.len().min(config.max_train_samples - used)]
-                } else {
-                    chunk
-                };
-                used += chunk.len();
                 batch_index += 1;
                 if batch_index <= state.batch {
                     continue; // done before an interruption
@@ -450,7 +459,8 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                 let refs: Vec<&Prepared> = prepared.iter().collect();
                 let (total, terms) = setup.losses(&model, &refs);
                 let grads = GradientsParams::from_grads(total.backward(), &model);
-                model = optim.step(config.learning_rate, model, grads);
+                let lr = config.rate_at(state.steps, (config.epochs * total_batches_hint) as u64);
+                model = optim.step(lr, model, grads);
                 state.batch = batch_index;
                 state.steps += 1;
                 state.seconds = seconds_before + started.elapsed().as_secs_f64();

@@ -56,6 +56,149 @@ enum BenchCommand {
         #[arg(long)]
         variant: Option<String>,
     },
+    /// Inference time of GarNet networks: per drape, the DQS warp, the inputs (normals,
+    /// k-NN searches) and both streams, at batch 1 and 16, for each variant and garment
+    /// size. Freshly initialised weights of the config's widths (the time does not depend
+    /// on the weights).
+    Predict {
+        /// Training config giving the widths (configs/train/*.toml).
+        #[arg(value_name = "CONFIG.toml")]
+        config: std::path::PathBuf,
+        /// Garment.
+        #[arg(long, default_value = "tshirt")]
+        garment: String,
+        /// Template sizes, comma-separated.
+        #[arg(long, default_value = "3000,10000", value_delimiter = ',')]
+        resolution: Vec<usize>,
+        /// Batch sizes, comma-separated.
+        #[arg(long, default_value = "1,16", value_delimiter = ',')]
+        batch: Vec<usize>,
+        /// Variants, comma-separated (default: all four).
+        #[arg(
+            long,
+            default_value = "naive,global,local,global-params",
+            value_delimiter = ','
+        )]
+        variant: Vec<String>,
+        /// Timed repeats per measurement (after one warm-up); the median is printed.
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
+    },
+}
+
+/// A variant name as in the configs.
+fn parse_variant(v: &str) -> anyhow::Result<learn::config::Variant> {
+    serde_json::from_value(serde_json::Value::String(v.to_string()))
+        .map_err(|_| anyhow::anyhow!("unknown variant {v:?}: naive, global, local, global-params"))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// `drape bench predict`.
+#[allow(clippy::too_many_arguments)]
+fn bench_predict(
+    ctx: &Context,
+    config: &std::path::Path,
+    garment: &str,
+    resolutions: &[usize],
+    batches: &[usize],
+    variants: &[String],
+    repeats: usize,
+) -> anyhow::Result<()> {
+    let base = learn::config::TrainConfig::load(config)?;
+    let variants: Vec<_> = variants
+        .iter()
+        .map(|v| parse_variant(v))
+        .collect::<anyhow::Result<_>>()?;
+    let repeats = repeats.max(1);
+    let most = batches.iter().copied().max().unwrap_or(1).max(1);
+    let (model, library) = load(ctx)?;
+    let canonical = model.shape(&ShapeParams::default())?;
+    let threads = rayon::current_num_threads();
+    println!(
+        "{garment}, default body, poses random:1..={most}; {threads} threads; median of {repeats} runs after a warm-up"
+    );
+    println!(
+        "{:<22} {:>8} {:>6} {:>11} {:>11} {:>13} {:>13} {:>10}",
+        "variant",
+        "vertices",
+        "batch",
+        "warp ms/s",
+        "inputs ms/s",
+        "network ms/b",
+        "network ms/s",
+        "ms/drape"
+    );
+    for &res in resolutions {
+        let t = super::garment::template(ctx, garment, Some(res), &model)?;
+        let mut samples = Vec::with_capacity(most);
+        let mut warp = Vec::with_capacity(most);
+        for i in 1..=most {
+            let resolved = super::pose_spec::resolve(&format!("random:{i}"), &canonical, &library)?;
+            let posed = canonical.pose(&resolved.pose);
+            let t0 = std::time::Instant::now();
+            let warped = t.warp(&canonical, &canonical, &posed);
+            warp.push(t0.elapsed().as_secs_f64());
+            let mut p: Vec<f32> = ShapeParams::default().named().map(|(_, v)| v).to_vec();
+            for q in &resolved.pose.rotations {
+                p.extend_from_slice(&q.to_array());
+            }
+            samples.push((posed.vertices, resolved.pose.root_translation, p, warped));
+        }
+        let warp = median(warp);
+        let statics = dataset::shard::Static {
+            garment_vertices: t.mesh.vertices.clone(),
+            garment_triangles: t.mesh.triangles.clone(),
+            body_triangles: model.triangles.clone(),
+            canonical_body: canonical.vertices.clone(),
+            bones: (samples[0].2.len() - dataset::shard::SHAPE_FIELDS.len()) / 4,
+        };
+        for &variant in &variants {
+            let mut c = base.clone();
+            c.model.variant = variant;
+            c.validate()?;
+            let net = learn::predict::Predictor::untrained(&c, &statics);
+            for &b in batches {
+                let b = b.max(1);
+                let (mut inputs, mut network) = (Vec::new(), Vec::new());
+                for r in 0..=repeats {
+                    let t0 = std::time::Instant::now();
+                    let prepared: Vec<learn::data::Prepared> = samples[..b]
+                        .iter()
+                        .map(|(body, root, p, w)| net.prepare(body, *root, p.clone(), w))
+                        .collect();
+                    let t1 = std::time::Instant::now();
+                    let refs: Vec<&learn::data::Prepared> = prepared.iter().collect();
+                    let out = net.predict(&refs);
+                    let t2 = std::time::Instant::now();
+                    assert_eq!(out.len(), b);
+                    if r > 0 {
+                        inputs.push((t1 - t0).as_secs_f64() / b as f64);
+                        network.push((t2 - t1).as_secs_f64());
+                    }
+                }
+                let (inputs, network) = (median(inputs), median(network));
+                println!(
+                    "{:<22} {:>8} {:>6} {:>11.2} {:>11.2} {:>13.1} {:>13.1} {:>10.1}",
+                    variant.paper_name(),
+                    t.mesh.vertices.len(),
+                    b,
+                    warp * 1e3,
+                    inputs * 1e3,
+                    network * 1e3,
+                    network * 1e3 / b as f64,
+                    (warp + inputs + network / b as f64) * 1e3
+                );
+            }
+        }
+    }
+    if let Some(mb) = peak_memory_mb() {
+        println!("peak memory: {mb:.0} MB");
+    }
+    Ok(())
 }
 
 /// Peak resident memory of this process (MB), from /proc where there is one.
@@ -83,6 +226,24 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             batch_size,
             variant,
         } => return bench_train(config, data, batches, batch_size, variant),
+        BenchCommand::Predict {
+            config,
+            garment,
+            resolution,
+            batch,
+            variant,
+            repeats,
+        } => {
+            return bench_predict(
+                ctx,
+                &config,
+                &garment,
+                &resolution,
+                &batch,
+                &variant,
+                repeats,
+            );
+        }
     };
     let config = match &config {
         Some(p) => SimConfig::load(p)?,
@@ -192,10 +353,7 @@ fn bench_train(
         c.batch_size = b;
     }
     if let Some(v) = variant {
-        c.model.variant =
-            serde_json::from_value(serde_json::Value::String(v.clone())).map_err(|_| {
-                anyhow::anyhow!("unknown variant {v:?}: naive, global, local, global-params")
-            })?;
+        c.model.variant = parse_variant(&v)?;
     }
     c.validate()?;
     let data = data.unwrap_or_else(|| c.data.clone());

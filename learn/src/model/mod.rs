@@ -176,10 +176,6 @@ pub struct GarNet {
     local_points: usize,
     #[module(skip)]
     length_scale: f64,
-    #[module(skip)]
-    displacement_scale: f64,
-    #[module(skip)]
-    fourier_bands: usize,
 }
 
 /// Width of the local body feature after its reduction layer (our choice).
@@ -203,12 +199,7 @@ impl GarNet {
         Self {
             body: (c.variant != Variant::GlobalParams).then(|| BodyStream::new(c, device)),
             local_in: local.then(|| LinearConfig::new(body_point, LOCAL_WIDTH).init(device)),
-            garment_mlp: Mlp::new(
-                3 + 6 * c.fourier_bands,
-                &c.garment_mlp,
-                c.leaky_slope,
-                device,
-            ),
+            garment_mlp: Mlp::new(3, &c.garment_mlp, c.leaky_slope, device),
             conv_in: SplitLinear::new(&[cg, global], c.conv_width, device),
             convs: c
                 .variant
@@ -225,8 +216,6 @@ impl GarNet {
             local_k: c.local_k,
             local_points: c.local_points(),
             length_scale: c.length_scale,
-            displacement_scale: c.displacement_scale,
-            fourier_bands: c.fourier_bands,
         }
     }
 
@@ -262,13 +251,7 @@ impl GarNet {
         let global = body_global.unsqueeze_dim::<3>(1); // [B, 1, G]
         // Garment stream.
         let xyz = input.warped.clone() * inv; // [B, N, 3]
-        let mut enc = vec![xyz.clone()];
-        for k in 0..self.fourier_bands {
-            let f = xyz.clone() * (std::f64::consts::PI * (1 << k) as f64);
-            enc.push(f.clone().sin());
-            enc.push(f.cos());
-        }
-        let point = self.garment_mlp.forward(Tensor::cat(enc, 2)); // [B, N, Cg]
+        let point = self.garment_mlp.forward(xyz.clone()); // [B, N, Cg]
         let h0 = leaky_relu(
             self.conv_in.forward(vec![point.clone(), global.clone()]),
             self.slope,
@@ -299,6 +282,6 @@ impl GarNet {
             fused.push(local);
         }
         let f = leaky_relu(self.fusion_in.forward(fused), self.slope); // [B, N, F0]
-        self.out.forward(self.fusion.forward(f)) * self.displacement_scale // [B, N, 3]
+        self.out.forward(self.fusion.forward(f)) // [B, N, 3]
     }
 }
