@@ -112,6 +112,93 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         "{text}"
     );
 
+    // A curvature fine-tune from the Local run: scales measured once and saved, finite
+    // curvature terms logged.
+    let mcrq = config(tmp.path(), 1, "local", "");
+    let mut text = std::fs::read_to_string(&mcrq).unwrap();
+    text.push_str("\n[loss]\nphysics_scale = 0.1\nmc = 10.0\nrq = [500.0, 50.0, 10.0]\n");
+    std::fs::write(&mcrq, text).unwrap();
+    let ft = tmp.path().join("ft-mcrq");
+    let (ok, text) = train(&mcrq, &data, &ft, &["--init".as_ref(), run_dir.as_os_str()]);
+    assert!(ok, "{text}");
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ft.join("run.json")).unwrap()).unwrap();
+    let scales = &info["curvature_scales"];
+    for k in 0..3 {
+        let s = scales["rq"][k].as_f64().unwrap();
+        assert!(s.is_finite() && s > 0.0 && s != 1.0, "{info}");
+    }
+    assert!(scales["mc"].as_f64().unwrap() > 0.0, "{info}");
+    let log = std::fs::read_to_string(ft.join("log.csv")).unwrap();
+    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let row: Vec<f64> = log
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .skip(2)
+        .map(|v| v.parse().unwrap())
+        .collect();
+    for name in ["rq8", "rq16", "rq32", "mc"] {
+        let i = header.iter().position(|h| *h == name).unwrap() - 2;
+        assert!(row[i].is_finite() && row[i] > 0.0, "{name}: {log}");
+    }
+
+    // drape predict: the run's garment on a new body and pose, OBJ and PNG.
+    let obj = tmp.path().join("pred.obj");
+    let png = tmp.path().join("pred.png");
+    let (ok, text) = run(drape()
+        .args(["predict", "--model"])
+        .arg(&run_dir)
+        .args(["--pose", "random:5", "--weight", "0.8", "-o"])
+        .arg(&obj)
+        .arg("--png")
+        .arg(&png));
+    assert!(ok, "{text}");
+    let mesh = std::fs::read_to_string(&obj).unwrap();
+    let verts: Vec<Vec<f64>> = mesh
+        .lines()
+        .filter(|l| l.starts_with("v "))
+        .map(|l| {
+            l[2..]
+                .split_whitespace()
+                .map(|v| v.parse().unwrap())
+                .collect()
+        })
+        .collect();
+    assert_eq!(verts.len(), 2967, "{text}");
+    assert!(
+        verts
+            .iter()
+            .flatten()
+            .all(|v: &f64| v.is_finite() && v.abs() < 3.0)
+    );
+    assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    let (ok, text) = run(drape()
+        .args(["predict", "--model"])
+        .arg(tmp.path())
+        .arg("-o")
+        .arg(&obj));
+    assert!(!ok && text.contains("not a run folder"), "{text}");
+
+    // The batch API: a batch of two predicts what each sample alone does.
+    let d = dataset::reader::Dataset::open(&data).unwrap();
+    let net = learn::predict::Predictor::open(&run_dir, &d.statics).unwrap();
+    let rows = d.read_shard(&d.manifest.shards[0].file).unwrap();
+    let (both, _) = net.predict_rows(&rows[..2]);
+    for (i, row) in rows[..2].iter().enumerate() {
+        let (one, _) = net.predict_rows(std::slice::from_ref(row));
+        let diff = one[0]
+            .iter()
+            .zip(&both[i])
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max);
+        assert!(
+            diff < 1e-5,
+            "sample {i}: batch and single differ by {diff} m"
+        );
+    }
+
     // Unknown fields and out-of-range values are named.
     let bad = config(tmp.path(), 2, "local", "\nwidth = 3");
     let (ok, text) = train(&bad, &data, &tmp.path().join("bad"), &[]);
