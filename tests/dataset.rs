@@ -2,26 +2,15 @@
 //! counts, resume after interruption, parts and merge, verification of tampered shards,
 //! reading shards from Python.
 
+mod common;
+
+use common::{drape, run};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
 use dataset::config::Split;
 use dataset::reader::Dataset;
-
-fn drape() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_drape"))
-}
-
-fn run(cmd: &mut Command) -> (bool, String) {
-    let out = cmd.output().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
-}
 
 fn gen_into(dir: &Path, extra: &[&str]) -> String {
     let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(dir).args(extra));

@@ -6,22 +6,10 @@
 //! networks reach 1.2 to 2.5 cm from 6.4 cm (docs/learn.md gives the measured curves and
 //! what it takes to reach 3 mm), so this test asserts the measured level with a margin.
 
+mod common;
+
+use common::{drape, run};
 use std::path::Path;
-use std::process::Command;
-
-fn drape() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_drape"))
-}
-
-fn run(cmd: &mut Command) -> (bool, String) {
-    let out = cmd.output().expect("drape runs");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
-}
 
 /// Mean DQS Edist (cm) of the `n` lowest-id training samples.
 fn dqs_edist(data: &Path, n: usize) -> f64 {

@@ -2,22 +2,10 @@
 //! checkpoints; validation loss below the DQS warp's; resume of a finished run; fine-tuning
 //! checks; bad configs refused.
 
+mod common;
+
+use common::{drape, run};
 use std::path::Path;
-use std::process::Command;
-
-fn drape() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_drape"))
-}
-
-fn run(cmd: &mut Command) -> (bool, String) {
-    let out = cmd.output().expect("drape runs");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
-}
 
 /// The tiny training config with a few epochs and another variant.
 fn config(dir: &Path, epochs: usize, variant: &str, extra: &str) -> std::path::PathBuf {

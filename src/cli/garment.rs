@@ -286,32 +286,40 @@ pub struct WarpArgs {
     #[arg(long, value_name = "N")]
     resolution: Option<usize>,
     #[command(flatten)]
-    shape: ShapeArgs,
+    target: BodyOutputArgs,
+}
+
+/// A shaped, posed body and the files a garment on it goes to (`drape warp`, `drape
+/// predict`).
+#[derive(Debug, Args)]
+pub struct BodyOutputArgs {
+    #[command(flatten)]
+    pub shape: ShapeArgs,
     /// Target pose (as for `drape body --pose`).
     #[arg(long, default_value = "rest", value_name = "SPEC")]
-    pose: String,
-    /// Output OBJ of the warped garment.
+    pub pose: String,
+    /// Output OBJ of the garment.
     #[arg(short = 'o', long, value_name = "FILE.obj")]
-    output: PathBuf,
+    pub output: PathBuf,
     /// Also render it on the posed body.
     #[arg(long, value_name = "FILE.png")]
-    png: Option<PathBuf>,
+    pub png: Option<PathBuf>,
 }
 
 /// Runs `drape warp`: `M = dqs(M0, body)`.
 pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
-    let params = args.shape.params()?;
+    let params = args.target.shape.params()?;
     let (model, library) = load(ctx)?;
     let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
-    let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
+    let resolved = pose_spec::resolve(&args.target.pose, &target, &library)?;
     let t = template(ctx, &args.garment, args.resolution, &model)?;
     let posed = target.pose(&resolved.pose);
     let warped = TriMesh::new(
         t.warp(&canonical, &target, &posed),
         t.mesh.triangles.clone(),
     );
-    let image = match &args.png {
+    let image = match &args.target.png {
         Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &warped)?)),
         None => None,
     };
@@ -319,13 +327,13 @@ pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
         "drape warp: garment {} (DQS), pose {}",
         args.garment, resolved.description
     );
-    write_outputs(&warped, &header, Some(&args.output), image)?;
+    write_outputs(&warped, &header, Some(&args.target.output), image)?;
     println!(
         "{}: {} vertices warped to pose {} -> {}",
         args.garment,
         warped.vertices.len(),
         resolved.description,
-        args.output.display()
+        args.target.output.display()
     );
     Ok(())
 }

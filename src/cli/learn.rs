@@ -9,8 +9,8 @@ use learn::train::{TrainOptions, train};
 use sim::body::ShapeParams;
 use sim::mesh::TriMesh;
 
-use super::body::{ShapeArgs, load};
-use super::garment::{render, template, write_outputs};
+use super::body::load;
+use super::garment::{BodyOutputArgs, render, template, write_outputs};
 use super::{Context, pose_spec};
 
 /// `drape train`.
@@ -82,27 +82,18 @@ pub struct PredictArgs {
     #[arg(long = "model", value_name = "RUN_DIR")]
     run: PathBuf,
     #[command(flatten)]
-    shape: ShapeArgs,
-    /// Target pose (as for `drape body --pose`).
-    #[arg(long, default_value = "rest", value_name = "SPEC")]
-    pose: String,
-    /// Output OBJ of the predicted drape.
-    #[arg(short = 'o', long, value_name = "FILE.obj")]
-    output: PathBuf,
-    /// Also render it on the posed body.
-    #[arg(long, value_name = "FILE.png")]
-    png: Option<PathBuf>,
+    target: BodyOutputArgs,
 }
 
 /// Runs `drape predict`: `G^P = M + T^P` with `M = dqs(M0, body)`.
 pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
     let (_, info) = learn::run::open_run(&args.run)?;
-    let params = args.shape.params()?;
+    let params = args.target.shape.params()?;
     let (model, library) = load(ctx)?;
     let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
-    let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
+    let resolved = pose_spec::resolve(&args.target.pose, &target, &library)?;
     let t = template(ctx, &info.garment, Some(info.resolution), &model)?;
     let statics = dataset::shard::Static {
         garment_vertices: t.mesh.vertices.clone(),
@@ -124,7 +115,7 @@ pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
     let pred = net.predict(&[&x]).pop().expect("one prediction");
     let seconds = t1.elapsed().as_secs_f64();
     let mesh = TriMesh::new(pred, t.mesh.triangles.clone());
-    let image = match &args.png {
+    let image = match &args.target.png {
         Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &mesh)?)),
         None => None,
     };
@@ -135,7 +126,7 @@ pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
         args.run.display(),
         resolved.description
     );
-    write_outputs(&mesh, &header, Some(&args.output), image)?;
+    write_outputs(&mesh, &header, Some(&args.target.output), image)?;
     println!(
         "{} ({}, {} vertices): pose {}; warp + network {:.3} s (loading {:.2} s) -> {}",
         info.garment,
@@ -144,7 +135,7 @@ pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
         resolved.description,
         seconds,
         loaded,
-        args.output.display()
+        args.target.output.display()
     );
     Ok(())
 }
