@@ -1,6 +1,7 @@
 //! How fast a config fits: trains on the first `SAMPLES` training samples for `STEPS` Adam
 //! steps (batches of the config's size, cycling) and prints the training and held-out
-//! (val + test) Edist every `EVERY` steps. A diagnostic for model and loss changes.
+//! (val + test) Edist every `EVERY` steps, with the config's learning rate (and its decay,
+//! `learning_rate_end`). A diagnostic for model and loss changes.
 //!
 //! `cargo run --release -p learn --example fit -- CONFIG DATASET_DIR SAMPLES STEPS [EVERY]`
 
@@ -79,17 +80,6 @@ fn main() {
             break;
         }
         let grads = GradientsParams::from_grads(loss.backward(), &model);
-        // Cosine decay to `LR_END` (environment, default: constant rate).
-        let lr = match std::env::var("LR_END")
-            .ok()
-            .and_then(|v| v.parse::<f64>().ok())
-        {
-            Some(end) => {
-                let t = step as f64 / steps as f64;
-                end + (config.learning_rate - end) * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())
-            }
-            None => config.learning_rate,
-        };
-        model = optim.step(lr, model, grads);
+        model = optim.step(config.rate_at(step as u64, steps as u64), model, grads);
     }
 }

@@ -141,12 +141,17 @@ impl Preprocessor {
 
 /// Shape parameters then pose quaternions (x, y, z, w per bone): GarNet-Global-Params'
 /// body description.
-pub fn row_params(row: &Row) -> Vec<f32> {
-    let mut p = row.shape.to_vec();
-    for q in &row.pose {
-        p.extend_from_slice(&[q.x, q.y, q.z, q.w]);
+pub fn body_params(shape: &[f32], pose: &[glam::Quat]) -> Vec<f32> {
+    let mut p = shape.to_vec();
+    for q in pose {
+        p.extend_from_slice(&q.to_array());
     }
     p
+}
+
+/// [`body_params`] of a dataset row.
+pub fn row_params(row: &Row) -> Vec<f32> {
+    body_params(&row.shape, &row.pose)
 }
 
 /// For each query, the indices of its `k` nearest points (nearest first).

@@ -142,20 +142,15 @@ fn bench_predict(
             let t0 = std::time::Instant::now();
             let warped = t.warp(&canonical, &canonical, &posed);
             warp.push(t0.elapsed().as_secs_f64());
-            let mut p: Vec<f32> = ShapeParams::default().named().map(|(_, v)| v).to_vec();
-            for q in &resolved.pose.rotations {
-                p.extend_from_slice(&q.to_array());
-            }
+            let p = learn::data::body_params(
+                &ShapeParams::default().named().map(|(_, v)| v),
+                &resolved.pose.rotations,
+            );
             samples.push((posed.vertices, resolved.pose.root_translation, p, warped));
         }
         let warp = median(warp);
-        let statics = dataset::shard::Static {
-            garment_vertices: t.mesh.vertices.clone(),
-            garment_triangles: t.mesh.triangles.clone(),
-            body_triangles: model.triangles.clone(),
-            canonical_body: canonical.vertices.clone(),
-            bones: (samples[0].2.len() - dataset::shard::SHAPE_FIELDS.len()) / 4,
-        };
+        let bones = (samples[0].2.len() - dataset::shard::SHAPE_FIELDS.len()) / 4;
+        let statics = super::learn::statics(&t, &model, &canonical.vertices, bones);
         for &variant in &variants {
             let mut c = base.clone();
             c.model.variant = variant;
