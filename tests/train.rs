@@ -187,6 +187,115 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         );
     }
 
+    // drape eval: the report folder, and its figures against ones computed here.
+    let report = tmp.path().join("report");
+    let (ok, text) = run(drape()
+        .args(["eval", "--model"])
+        .arg(&run_dir)
+        .arg("--data")
+        .arg(&data)
+        .arg("-o")
+        .arg(&report));
+    assert!(ok, "{text}");
+    for f in [
+        "report.md",
+        "metrics.json",
+        "samples.csv",
+        "ap_distance.csv",
+        "ap_distance.png",
+        "ap_angle.csv",
+        "ap_angle.png",
+        "best.png",
+        "median.png",
+        "worst.png",
+        "best-error.exr",
+    ] {
+        assert!(report.join(f).exists(), "{f} missing: {text}");
+    }
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(report.join("metrics.json")).unwrap()).unwrap();
+    let test_rows: Vec<dataset::shard::Row> = d
+        .samples(dataset::config::Split::Test)
+        .map(|s| s.unwrap().row)
+        .collect();
+    assert_eq!(m["samples_evaluated"], test_rows.len());
+    let (preds, _) = net.predict_rows(&test_rows);
+    let mean_edist = |xs: &mut dyn Iterator<Item = (&[glam::Vec3], &[glam::Vec3])>| {
+        let v: Vec<f64> = xs.map(|(p, g)| eval::metrics::edist_cm(p, g)).collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    let dqs = mean_edist(&mut test_rows.iter().map(|r| (&r.warped[..], &r.draped[..])));
+    let netd = mean_edist(
+        &mut preds
+            .iter()
+            .zip(&test_rows)
+            .map(|(p, r)| (&p[..], &r.draped[..])),
+    );
+    let got = |method: &str| m["summaries"][method]["edist_cm"][0].as_f64().unwrap();
+    assert!((got("dqs") - dqs).abs() < 1e-4, "{} vs {dqs}", got("dqs"));
+    assert!(
+        (got("network") - netd).abs() < 1e-3,
+        "{} vs {netd}",
+        got("network")
+    );
+    assert!(got("mean-residual") > 0.0 && got("nearest-neighbour") > 0.0);
+    // The curves rise from 0 to at most 1.
+    for (kind, top) in [("distance_cm", 3.0), ("angle_deg", 45.0)] {
+        let c = m["curves"][kind]["network"].as_array().unwrap();
+        let pts: Vec<(f64, f64)> = c
+            .iter()
+            .map(|p| (p[0].as_f64().unwrap(), p[1].as_f64().unwrap()))
+            .collect();
+        assert_eq!(pts.last().unwrap().0, top);
+        assert!(pts.windows(2).all(|w| w[1].1 >= w[0].1 && w[1].1 <= 1.0));
+    }
+    // The simulator's drapes were verified free of penetrations.
+    assert!(
+        m["summaries"]["simulator"]["interpenetration"][0]
+            .as_f64()
+            .unwrap()
+            < 0.01
+    );
+    // The error image reads in OpenEXR's own Python binding, with the render's size and
+    // the errors' range.
+    let png = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(report.join("best.png")).unwrap(),
+    ))
+    .read_info()
+    .unwrap();
+    let check = format!(
+        "import OpenEXR, numpy as np\n\
+         y = OpenEXR.File('{}').channels()['Y'].pixels\n\
+         v = y[np.isfinite(y)]\n\
+         print(y.shape[0], y.shape[1], v.size, float(v.min()), float(v.max()))",
+        report.join("best-error.exr").display()
+    );
+    let out = std::process::Command::new("python3")
+        .args(["-c", &check])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let f: Vec<f64> = String::from_utf8_lossy(&out.stdout)
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert!(f[0] > 100.0 && f[0] < png.info().height as f64, "{f:?}");
+    assert!(
+        f[1] > 100.0 && f[1] < png.info().width as f64 / 2.0 + 1.0,
+        "{f:?}"
+    );
+    assert!(f[2] > 1000.0 && f[3] >= 0.0 && f[4] < 100.0, "{f:?}");
+    let (ok, text) = run(drape()
+        .args(["eval", "--split", "holdout", "--model"])
+        .arg(&run_dir)
+        .arg("-o")
+        .arg(&report));
+    assert!(!ok && text.contains("holdout"), "{text}");
+
     // Unknown fields and out-of-range values are named.
     let bad = config(tmp.path(), 2, "local", "\nwidth = 3");
     let (ok, text) = train(&bad, &data, &tmp.path().join("bad"), &[]);

@@ -17,6 +17,11 @@ pub struct Layer<'a> {
     pub triangles: &'a [[u32; 3]],
     /// Base colour (sRGB).
     pub colour: [u8; 3],
+    /// Per-vertex colours (sRGB) in place of `colour`, interpolated over faces.
+    pub vertex_colours: Option<&'a [[u8; 3]]>,
+    /// Per-vertex values (e.g. an error in cm) interpolated into [`Values`] by
+    /// [`render_values`].
+    pub values: Option<&'a [f32]>,
 }
 
 impl<'a> Layer<'a> {
@@ -26,8 +31,29 @@ impl<'a> Layer<'a> {
             vertices,
             triangles,
             colour,
+            vertex_colours: None,
+            values: None,
         }
     }
+
+    /// Colours each vertex with `colours` (one per vertex) and records `values`.
+    pub fn with_vertex_colours(mut self, colours: &'a [[u8; 3]], values: &'a [f32]) -> Self {
+        self.vertex_colours = Some(colours);
+        self.values = Some(values);
+        self
+    }
+}
+
+/// A float image of the values of the front-most layer that carries values (NaN where
+/// there is none), the same size as the colour image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Values {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Row-major values.
+    pub data: Vec<f32>,
 }
 
 /// A camera direction. Views are orthographic with Y up on screen.
@@ -111,12 +137,29 @@ pub const MAX_HEIGHT: u32 = 2048;
 /// Renders the layers into one image with the views side by side; all views share one
 /// scale so heights compare across views.
 pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, RenderError> {
+    render_values(layers, opts).map(|(image, _)| image)
+}
+
+/// [`render`], and the layers' per-vertex values as a float image.
+pub fn render_values(
+    layers: &[Layer<'_>],
+    opts: &RenderOptions,
+) -> Result<(Image, Values), RenderError> {
     let points = || layers.iter().flat_map(|l| l.vertices.iter().copied());
     if points().next().is_none() || opts.views.is_empty() {
         return Err(RenderError::Empty("no vertices or no views"));
     }
     if points().any(|p| !p.is_finite()) {
         return Err(RenderError::Empty("non-finite vertex positions"));
+    }
+    if layers.iter().any(|l| {
+        l.vertex_colours
+            .is_some_and(|c| c.len() != l.vertices.len())
+            || l.values.is_some_and(|v| v.len() != l.vertices.len())
+    }) {
+        return Err(RenderError::Empty(
+            "per-vertex colours or values do not match the vertices",
+        ));
     }
     if layers.iter().any(|l| {
         l.triangles
@@ -165,6 +208,7 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
     let (w_us, h_us) = (w_px as usize, h_px as usize);
     let mut colour = vec![Vec3::from_array(opts.background.map(|c| c as f32 / 255.0)); w_us * h_us];
     let mut depth = vec![f32::MIN; w_us * h_us];
+    let mut value = vec![f32::NAN; w_us * h_us];
 
     let mut x0 = 0u32;
     for ((view, b), &w) in opts.views.iter().zip(&bounds).zip(&widths) {
@@ -225,7 +269,19 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
                         } else {
                             0.15 + 0.45 * lambert
                         };
+                        let base = match layer.vertex_colours {
+                            Some(vc) => {
+                                let f =
+                                    |i: usize| Vec3::from_array(vc[i].map(|c| c as f32 / 255.0));
+                                f(a) * w0 + f(bb) * w1 + f(c) * w2
+                            }
+                            None => base,
+                        };
                         colour[k] = base * shade;
+                        value[k] = match layer.values {
+                            Some(v) => v[a] * w0 + v[bb] * w1 + v[c] * w2,
+                            None => f32::NAN,
+                        };
                     }
                 }
             }
@@ -235,9 +291,11 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
     // Downsample.
     let (w_out, h_out) = (w_px / SUPERSAMPLE, h_px / SUPERSAMPLE);
     let mut rgb = Vec::with_capacity((w_out * h_out * 3) as usize);
+    let mut values = Vec::with_capacity((w_out * h_out) as usize);
     for y in 0..h_out {
         for x in 0..w_out {
             let mut acc = Vec3::ZERO;
+            let (mut vsum, mut vn) = (0.0f32, 0u32);
             for dy in 0..SUPERSAMPLE {
                 for dx in 0..SUPERSAMPLE {
                     let (sy, sx) = (
@@ -245,8 +303,14 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
                         (x * SUPERSAMPLE + dx) as usize,
                     );
                     acc += colour[sy * w_us + sx];
+                    let v = value[sy * w_us + sx];
+                    if v.is_finite() {
+                        vsum += v;
+                        vn += 1;
+                    }
                 }
             }
+            values.push(if vn > 0 { vsum / vn as f32 } else { f32::NAN });
             let c = acc / (SUPERSAMPLE * SUPERSAMPLE) as f32;
             rgb.extend(
                 c.to_array()
@@ -254,11 +318,18 @@ pub fn render(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Image, Rende
             );
         }
     }
-    Ok(Image {
-        width: w_out,
-        height: h_out,
-        rgb,
-    })
+    Ok((
+        Image {
+            width: w_out,
+            height: h_out,
+            rgb,
+        },
+        Values {
+            width: w_out,
+            height: h_out,
+            data: values,
+        },
+    ))
 }
 
 /// Places images in a grid, `columns` per row, on a background colour.
@@ -368,5 +439,51 @@ mod tests {
     #[test]
     fn empty_input_is_an_error() {
         assert!(render(&[], &RenderOptions::default()).is_err());
+    }
+}
+
+/// The error colour map: `t` in 0 to 1 (clamped) from dark blue through cyan, green and
+/// yellow to red, piecewise linear through five colours of even lightness steps.
+pub fn error_colour(t: f32) -> [u8; 3] {
+    const STOPS: [[f32; 3]; 5] = [
+        [40.0, 60.0, 160.0],
+        [30.0, 170.0, 210.0],
+        [90.0, 190.0, 90.0],
+        [240.0, 210.0, 50.0],
+        [210.0, 40.0, 30.0],
+    ];
+    let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
+    let x = t * (STOPS.len() - 1) as f32;
+    let k = (x.floor() as usize).min(STOPS.len() - 2);
+    let f = x - k as f32;
+    let (a, b) = (STOPS[k], STOPS[k + 1]);
+    [0, 1, 2].map(|i| (a[i] + (b[i] - a[i]) * f).round() as u8)
+}
+
+/// Stacks images top to bottom, each centred horizontally, on a background colour.
+pub fn stack(images: &[Image], background: [u8; 3]) -> Image {
+    let w = images.iter().map(|i| i.width).max().unwrap_or(1);
+    let h = images.iter().map(|i| i.height).sum::<u32>().max(1);
+    let mut rgb: Vec<u8> = background
+        .iter()
+        .copied()
+        .cycle()
+        .take((w * h * 3) as usize)
+        .collect();
+    let mut oy = 0;
+    for img in images {
+        let ox = (w - img.width) / 2;
+        for y in 0..img.height {
+            let src = (y * img.width * 3) as usize;
+            let dst = (((oy + y) * w + ox) * 3) as usize;
+            rgb[dst..dst + (img.width * 3) as usize]
+                .copy_from_slice(&img.rgb[src..src + (img.width * 3) as usize]);
+        }
+        oy += img.height;
+    }
+    Image {
+        width: w,
+        height: h,
+        rgb,
     }
 }

@@ -307,3 +307,45 @@ pub fn mean_curvature_normal(x: Tensor<3>, topo: &LossTopology) -> Tensor<3> {
 pub fn mean_curvature_loss(pred: Tensor<3>, target: Tensor<3>, topo: &LossTopology) -> Tensor<1> {
     sq_norm(mean_curvature_normal(pred, topo) - mean_curvature_normal(target, topo)).mean()
 }
+
+/// The curvature losses as evaluation metrics (the paper's Table 7): per sample L_MC and
+/// L_RQ^8, L_RQ^16, L_RQ^32 of a prediction against its ground truth, without gradients.
+#[derive(Debug, Clone)]
+pub struct CurvatureErrors {
+    topology: LossTopology,
+    device: Device,
+}
+
+impl CurvatureErrors {
+    /// For the garment with `vertices` vertices and `triangles`, on the default device.
+    pub fn new(vertices: usize, triangles: &[[u32; 3]]) -> Self {
+        let device = Device::default();
+        Self {
+            topology: LossTopology::new(&Topology::new(vertices, triangles), &device),
+            device,
+        }
+    }
+
+    /// `[L_MC, L_RQ^8, L_RQ^16, L_RQ^32]` of `pred` against `target` (metres).
+    pub fn of(&self, pred: &[Vec3], target: &[Vec3]) -> [f64; 4] {
+        let n = target.len();
+        let tensor = |x: &[Vec3]| {
+            let v: Vec<f32> = x.iter().flat_map(|p| p.to_array()).collect();
+            Tensor::<3>::from_data(TensorData::new(v, [1, n, 3]), &self.device)
+        };
+        let (p, g) = (tensor(pred), tensor(target));
+        let value = |t: Tensor<1>| t.into_data().try_into_vec::<f32>().expect("f32")[0] as f64;
+        let mc = value(mean_curvature_loss(p.clone(), g.clone(), &self.topology));
+        let kmax = crate::train::RQ_SIZES[2];
+        let rows = rq_neighbourhoods(&[target], kmax, &self.device);
+        let rq = crate::train::RQ_SIZES.map(|k| {
+            let r = rows
+                .clone()
+                .reshape([n, kmax])
+                .slice([0..n, 0..k])
+                .reshape([n * k]);
+            value(rayleigh_loss(p.clone(), g.clone(), r, k))
+        });
+        [mc, rq[0], rq[1], rq[2]]
+    }
+}

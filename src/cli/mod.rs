@@ -3,6 +3,7 @@
 mod bench;
 mod body;
 mod data;
+mod evaluate;
 mod garment;
 mod learn;
 mod pose_spec;
@@ -53,6 +54,10 @@ pub enum Command {
     /// Drape a garment with a trained network: the DQS warp onto a shaped, posed body, then
     /// the network (the run folder knows its garment).
     Predict(Box<learn::PredictArgs>),
+    /// Evaluate a trained network and the DQS, mean-residual and nearest-neighbour
+    /// baselines on a dataset split: Edist, Enorm, curvature, physics, curves and renders
+    /// in a report folder.
+    Eval(evaluate::EvalArgs),
 }
 
 /// Options every command shares.
@@ -82,5 +87,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Data(args) => data::data_run(args, &ctx),
         Command::Train(args) => learn::run(args),
         Command::Predict(args) => learn::predict(*args, &ctx),
+        Command::Eval(args) => evaluate::run(args),
     }
 }

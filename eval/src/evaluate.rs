@@ -1,0 +1,422 @@
+//! `drape eval`: a trained network and three baselines measured on a dataset split.
+//!
+//! Methods, each a garment per test sample:
+//! - the network (`G^P = M + T^P`, [`learn::predict::Predictor`]);
+//! - **DQS**: the warped template `M` itself (the paper's Table 1 baseline);
+//! - **mean residual**: `M` plus the training split's mean displacement `mean(G - M)`;
+//! - **nearest neighbour**: `M` plus the displacement `G_j - M_j` of the training sample
+//!   `j` with the closest shape and pose ([`pose_shape_distance`]).
+//!
+//! Per sample and method: Edist, Enorm, L_MC and L_RQ^K, the physics energies and the
+//! interpenetration ratio; the simulator's own energies and interpenetration for reference;
+//! average-precision curves per method.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use dataset::config::Split;
+use dataset::reader::{Dataset, Sample};
+use dataset::shard::Row;
+use glam::{Quat, Vec3};
+use learn::loss::CurvatureErrors;
+use learn::predict::Predictor;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::metrics::{self, Curve, Energies, Fabric, Physics};
+
+/// Evaluation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// Reading the dataset failed.
+    #[error(transparent)]
+    Data(#[from] dataset::DatasetError),
+    /// Loading the network failed.
+    #[error(transparent)]
+    Learn(#[from] learn::LearnError),
+    /// Nothing to evaluate, or inputs that do not fit together.
+    #[error("{0}")]
+    Invalid(String),
+    /// Writing the report failed.
+    #[error("cannot write {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Rendering failed.
+    #[error(transparent)]
+    Render(#[from] crate::render::RenderError),
+}
+
+/// What to evaluate.
+#[derive(Debug, Clone)]
+pub struct EvalOptions {
+    /// The split (test by default in the command).
+    pub split: Split,
+    /// Samples per network batch.
+    pub batch: usize,
+    /// Only the first `limit` samples of the split (all if `None`).
+    pub limit: Option<usize>,
+    /// Show progress bars.
+    pub progress: bool,
+}
+
+/// The methods, in report order.
+pub const METHODS: [&str; 4] = ["network", "dqs", "mean-residual", "nearest-neighbour"];
+
+/// Display names of [`METHODS`] (the network's is its variant's).
+pub fn method_title(method: &str, network: &str) -> String {
+    match method {
+        "network" => network.to_string(),
+        "dqs" => "DQS".into(),
+        "mean-residual" => "Mean residual".into(),
+        "nearest-neighbour" => "Nearest neighbour".into(),
+        "simulator" => "Simulator".into(),
+        m => m.into(),
+    }
+}
+
+/// The figures of one garment against the simulator's.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Figures {
+    /// Eq. 17 (cm).
+    pub edist_cm: f64,
+    /// Eq. 18 (degrees).
+    pub enorm_deg: f64,
+    /// L_MC (m^-2).
+    pub l_mc: f64,
+    /// L_RQ^8, L_RQ^16, L_RQ^32 (m^4).
+    pub l_rq: [f64; 3],
+    /// Membrane, bending and gravity energies (J).
+    pub strain_j: f64,
+    /// Bending energy (J).
+    pub bending_j: f64,
+    /// Gravitational potential energy above the body's lowest vertex (J).
+    pub gravity_j: f64,
+    /// Share of vertices inside the body.
+    pub interpenetration: f64,
+}
+
+/// One evaluated sample.
+#[derive(Debug, Clone, Serialize)]
+pub struct SampleEval {
+    /// Sample id.
+    pub id: u64,
+    /// Pose family.
+    pub family: String,
+    /// Simulator time of this drape when the dataset was made (s, one thread).
+    pub sim_seconds: f64,
+    /// Figures per method ([`METHODS`]).
+    pub methods: BTreeMap<String, Figures>,
+    /// The simulator's own energies and interpenetration (Edist and friends are zero).
+    pub simulator: Figures,
+    /// Training sample used by the nearest-neighbour baseline.
+    pub neighbour: u64,
+}
+
+/// Everything measured.
+#[derive(Debug, Clone)]
+pub struct Evaluation {
+    /// Per sample, in split order.
+    pub samples: Vec<SampleEval>,
+    /// Vertex-distance curves (cm) per method.
+    pub distance_curves: BTreeMap<String, Curve>,
+    /// Face-angle curves (degrees) per method.
+    pub angle_curves: BTreeMap<String, Curve>,
+    /// Training samples the baselines saw.
+    pub train_samples: usize,
+    /// Wall time of the network's batches (inputs and both streams) per drape (s).
+    pub network_seconds_per_drape: f64,
+    /// Batch size of those batches.
+    pub batch: usize,
+    /// The network's paper name.
+    pub network: String,
+    /// Wall time of the whole evaluation (s).
+    pub seconds: f64,
+}
+
+/// Distance between two training keys: mean bone rotation angle (radians) plus the
+/// Euclidean distance of the shape parameters (each in 0 to 1), so one radian of pose
+/// weighs as much as the whole range of one shape parameter.
+pub fn pose_shape_distance(a: &Key, b: &Key) -> f64 {
+    let pose = dataset::inspect::pose_distance(&a.pose, &b.pose).to_radians();
+    let shape: f64 = a
+        .shape
+        .iter()
+        .zip(&b.shape)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    pose + shape
+}
+
+/// Shape and pose of a sample.
+#[derive(Debug, Clone)]
+pub struct Key {
+    /// Sample id.
+    pub id: u64,
+    /// Shape parameters.
+    pub shape: [f32; 9],
+    /// Bone rotations.
+    pub pose: Vec<Quat>,
+}
+
+impl Key {
+    fn of(row: &Row) -> Self {
+        Self {
+            id: row.id,
+            shape: row.shape,
+            pose: row.pose.clone(),
+        }
+    }
+}
+
+fn progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
+    let bar = learn::run::progress(show, len as u64);
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// The training split's mean displacement and the keys of its samples (one pass).
+fn training_summary(data: &Dataset, show: bool) -> Result<(Vec<Vec3>, Vec<Key>), EvalError> {
+    let n = data.statics.garment_vertices.len();
+    let mut sum = vec![glam::DVec3::ZERO; n];
+    let mut keys = Vec::new();
+    let bar = progress(show, data.count(Split::Train), "training split: mean, keys");
+    for s in data.samples(Split::Train) {
+        let s = s?;
+        for ((acc, g), m) in sum.iter_mut().zip(&s.row.draped).zip(&s.row.warped) {
+            *acc += (*g - *m).as_dvec3();
+        }
+        keys.push(Key::of(&s.row));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    if keys.is_empty() {
+        return Err(EvalError::Invalid(format!(
+            "{} has no training samples: the baselines need them",
+            data.dir.display()
+        )));
+    }
+    let k = keys.len() as f64;
+    Ok((sum.iter().map(|s| (*s / k).as_vec3()).collect(), keys))
+}
+
+/// The evaluated samples of `split` (at most `limit`).
+fn split_samples(
+    data: &Dataset,
+    split: Split,
+    limit: Option<usize>,
+) -> impl Iterator<Item = Result<Sample, dataset::DatasetError>> + '_ {
+    data.samples(split).take(limit.unwrap_or(usize::MAX))
+}
+
+/// Evaluates the network of `run` and the baselines on `data`'s split.
+pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evaluation, EvalError> {
+    let t0 = Instant::now();
+    let st = &data.statics;
+    let net = Predictor::open(run, st)?;
+    if net.info.manifest_sha256 != learn::run::manifest_sha256(&data.dir)? {
+        eprintln!(
+            "note: {} was trained on dataset {:?}; evaluating on {} ({})",
+            run.display(),
+            net.info.dataset,
+            data.manifest.name,
+            data.dir.display()
+        );
+    }
+    let count = data.count(opts.split).min(opts.limit.unwrap_or(usize::MAX));
+    if count == 0 {
+        return Err(EvalError::Invalid(format!(
+            "{} has no converged {} samples",
+            data.dir.display(),
+            opts.split.name()
+        )));
+    }
+    // Baselines: the mean displacement and, per evaluated sample, the nearest training key.
+    let (mean_disp, keys) = training_summary(data, opts.progress)?;
+    let mut neighbour_of: HashMap<u64, u64> = HashMap::new();
+    for s in split_samples(data, opts.split, opts.limit) {
+        let s = s?;
+        let key = Key::of(&s.row);
+        let best = keys
+            .par_iter()
+            .map(|k| (pose_shape_distance(&key, k), k.id))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .expect("training keys");
+        neighbour_of.insert(s.row.id, best.1);
+    }
+    let wanted: HashSet<u64> = neighbour_of.values().copied().collect();
+    let mut displacement: HashMap<u64, Vec<Vec3>> = HashMap::new();
+    for s in data.samples(Split::Train) {
+        let s = s?;
+        if wanted.contains(&s.row.id) {
+            let d = s
+                .row
+                .draped
+                .iter()
+                .zip(&s.row.warped)
+                .map(|(g, m)| *g - *m)
+                .collect();
+            displacement.insert(s.row.id, d);
+        }
+    }
+
+    let physics = Physics::new(
+        &st.garment_vertices,
+        &st.garment_triangles,
+        Fabric::default(),
+    );
+    let curvature = CurvatureErrors::new(st.garment_vertices.len(), &st.garment_triangles);
+    let mut distance_curves: BTreeMap<String, Curve> = METHODS
+        .iter()
+        .map(|m| (m.to_string(), Curve::distances()))
+        .collect();
+    let mut angle_curves: BTreeMap<String, Curve> = METHODS
+        .iter()
+        .map(|m| (m.to_string(), Curve::angles()))
+        .collect();
+    let mut samples = Vec::with_capacity(count);
+    let mut network_seconds = 0.0;
+    let bar = progress(opts.progress, count, "evaluating");
+    let mut batch: Vec<Sample> = Vec::new();
+    let mut flush = |batch: &mut Vec<Sample>,
+                     samples: &mut Vec<SampleEval>|
+     -> Result<(), EvalError> {
+        if batch.is_empty() {
+            return Ok(());
+        }
+        let rows: Vec<Row> = batch.iter().map(|s| s.row.clone()).collect();
+        let (preds, timing) = net.predict_rows(&rows);
+        network_seconds += timing.inputs + timing.network;
+        // Each sample's garments per method, then the figures in parallel.
+        let per: Vec<(SampleEval, Vec<(String, Vec<f32>, Vec<f32>)>)> = batch
+            .par_iter()
+            .zip(preds)
+            .map(|(s, pred)| {
+                let row = &s.row;
+                let nn = &displacement[&neighbour_of[&row.id]];
+                let garments: [(&str, Vec<Vec3>); 4] = [
+                    ("network", pred),
+                    ("dqs", row.warped.clone()),
+                    (
+                        "mean-residual",
+                        row.warped
+                            .iter()
+                            .zip(&mean_disp)
+                            .map(|(m, d)| *m + *d)
+                            .collect(),
+                    ),
+                    (
+                        "nearest-neighbour",
+                        row.warped.iter().zip(nn).map(|(m, d)| *m + *d).collect(),
+                    ),
+                ];
+                let floor = row.body.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+                let collider = sim::cloth::BodyCollider::new(&row.body, &st.body_triangles, 0.0);
+                let inside = |x: &[Vec3]| {
+                    x.iter().filter(|p| collider.inside(**p)).count() as f64 / x.len() as f64
+                };
+                let with_energies = |f: Figures, e: Energies, x: &[Vec3]| Figures {
+                    strain_j: e.strain,
+                    bending_j: e.bending,
+                    gravity_j: e.gravity,
+                    interpenetration: inside(x),
+                    ..f
+                };
+                let mut methods = BTreeMap::new();
+                let mut errors = Vec::new();
+                for (name, x) in &garments {
+                    let dist = metrics::vertex_errors(x, &row.draped);
+                    let ang = metrics::face_angles(x, &row.draped, &st.garment_triangles);
+                    let c = curvature.of(x, &row.draped);
+                    let f = Figures {
+                        edist_cm: dist.iter().map(|&e| e as f64).sum::<f64>() / dist.len() as f64
+                            * 100.0,
+                        enorm_deg: ang.iter().map(|&e| e as f64).sum::<f64>() / ang.len() as f64,
+                        l_mc: c[0],
+                        l_rq: [c[1], c[2], c[3]],
+                        ..Figures::default()
+                    };
+                    methods.insert(
+                        name.to_string(),
+                        with_energies(f, physics.energies(x, floor), x),
+                    );
+                    errors.push((name.to_string(), dist, ang));
+                }
+                let simulator = with_energies(
+                    Figures::default(),
+                    physics.energies(&row.draped, floor),
+                    &row.draped,
+                );
+                let eval = SampleEval {
+                    id: row.id,
+                    family: s.record.family.clone(),
+                    sim_seconds: s.record.seconds - s.record.warp_seconds,
+                    methods,
+                    simulator,
+                    neighbour: neighbour_of[&row.id],
+                };
+                (eval, errors)
+            })
+            .collect();
+        for (eval, errors) in per {
+            for (name, dist, ang) in errors {
+                distance_curves
+                    .get_mut(&name)
+                    .expect("curve")
+                    .add(dist.iter().map(|&e| e as f64 * 100.0));
+                angle_curves
+                    .get_mut(&name)
+                    .expect("curve")
+                    .add(ang.iter().map(|&e| e as f64));
+            }
+            samples.push(eval);
+            bar.inc(1);
+        }
+        batch.clear();
+        Ok(())
+    };
+    for s in split_samples(data, opts.split, opts.limit) {
+        batch.push(s?);
+        if batch.len() == opts.batch.max(1) {
+            flush(&mut batch, &mut samples)?;
+        }
+    }
+    flush(&mut batch, &mut samples)?;
+    bar.finish_and_clear();
+    let n = samples.len();
+    Ok(Evaluation {
+        samples,
+        distance_curves,
+        angle_curves,
+        train_samples: keys.len(),
+        network_seconds_per_drape: network_seconds / n as f64,
+        batch: opts.batch.max(1),
+        network: net.config.model.variant.paper_name().to_string(),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The rows of `ids` from `split` (for the renders), in the order of `ids`.
+pub fn rows_of(data: &Dataset, split: Split, ids: &[u64]) -> Result<Vec<Row>, EvalError> {
+    let want: HashSet<u64> = ids.iter().copied().collect();
+    let mut found: HashMap<u64, Row> = HashMap::new();
+    for s in data.samples(split) {
+        let s = s?;
+        if want.contains(&s.row.id) {
+            found.insert(s.row.id, s.row);
+        }
+    }
+    ids.iter()
+        .map(|id| {
+            found
+                .get(id)
+                .cloned()
+                .ok_or_else(|| EvalError::Invalid(format!("sample {id} is not in the split")))
+        })
+        .collect()
+}

@@ -1,0 +1,497 @@
+//! The report folder of `drape eval`: `report.md` (tables, plots, renders), `metrics.json`
+//! (every figure with its provenance), `samples.csv`, the average-precision curves as CSV
+//! and PNG, and renders of the best, median and worst samples with their error maps (PNG
+//! and EXR).
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use dataset::config::Split;
+use dataset::reader::Dataset;
+use glam::Vec3;
+use learn::predict::Predictor;
+use serde::Serialize;
+
+use crate::evaluate::{EvalError, Evaluation, Figures, METHODS, method_title, rows_of};
+use crate::metrics::{mean_std, vertex_errors};
+use crate::plot::{Chart, PALETTE, Series, colour_bar, line_chart};
+use crate::render::{
+    BODY_COLOUR, GARMENT_COLOUR, Image, Layer, RenderOptions, encode_png, error_colour, grid,
+    render, render_values, stack,
+};
+
+/// Error (cm) shown as the top colour of the error maps.
+pub const ERROR_SCALE_CM: f32 = 4.0;
+
+/// Mean and standard deviation of each figure over the samples.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Summary {
+    /// Edist (cm).
+    pub edist_cm: (f64, f64),
+    /// Enorm (degrees).
+    pub enorm_deg: (f64, f64),
+    /// L_MC.
+    pub l_mc: (f64, f64),
+    /// L_RQ^8, L_RQ^16, L_RQ^32.
+    pub l_rq: [(f64, f64); 3],
+    /// Strain energy (J).
+    pub strain_j: (f64, f64),
+    /// Bending energy (J).
+    pub bending_j: (f64, f64),
+    /// Gravity energy (J).
+    pub gravity_j: (f64, f64),
+    /// Interpenetration ratio.
+    pub interpenetration: (f64, f64),
+}
+
+impl Summary {
+    fn of<'a>(figs: impl Iterator<Item = &'a Figures> + Clone) -> Self {
+        let col = |f: &dyn Fn(&Figures) -> f64| mean_std(&figs.clone().map(f).collect::<Vec<_>>());
+        Self {
+            edist_cm: col(&|f| f.edist_cm),
+            enorm_deg: col(&|f| f.enorm_deg),
+            l_mc: col(&|f| f.l_mc),
+            l_rq: [0, 1, 2].map(|k| col(&|f| f.l_rq[k])),
+            strain_j: col(&|f| f.strain_j),
+            bending_j: col(&|f| f.bending_j),
+            gravity_j: col(&|f| f.gravity_j),
+            interpenetration: col(&|f| f.interpenetration),
+        }
+    }
+}
+
+/// Summaries per method and of the simulator.
+pub fn summaries(ev: &Evaluation) -> BTreeMap<String, Summary> {
+    let mut out: BTreeMap<String, Summary> = METHODS
+        .iter()
+        .map(|m| {
+            (
+                m.to_string(),
+                Summary::of(ev.samples.iter().map(|s| &s.methods[*m])),
+            )
+        })
+        .collect();
+    out.insert(
+        "simulator".into(),
+        Summary::of(ev.samples.iter().map(|s| &s.simulator)),
+    );
+    out
+}
+
+/// Where the figures came from.
+#[derive(Debug, Clone, Serialize)]
+pub struct Provenance {
+    /// The run folder.
+    pub run: PathBuf,
+    /// sha256 of the run's resolved config (`config.toml`).
+    pub run_config_sha256: String,
+    /// The dataset folder, name and manifest sha256.
+    pub data: PathBuf,
+    /// Dataset name.
+    pub dataset: String,
+    /// sha256 of `manifest.json`.
+    pub manifest_sha256: String,
+    /// The split evaluated.
+    pub split: String,
+    /// Git revision of the program.
+    pub git_revision: String,
+    /// Program version.
+    pub program_version: String,
+}
+
+fn write(path: &Path, bytes: &[u8]) -> Result<(), EvalError> {
+    std::fs::write(path, bytes).map_err(|e| EvalError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    })
+}
+
+fn sha256_file(path: &Path) -> Result<String, EvalError> {
+    let bytes = std::fs::read(path).map_err(|e| EvalError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    })?;
+    Ok(dataset::generate::sha256(&bytes))
+}
+
+/// Body, simulator garment | body, network garment coloured by its error, with a colour
+/// bar; and the error image (cm) of the network view.
+fn sample_render(
+    body: &[Vec3],
+    body_triangles: &[[u32; 3]],
+    garment_triangles: &[[u32; 3]],
+    truth: &[Vec3],
+    pred: &[Vec3],
+) -> Result<(Image, crate::render::Values), EvalError> {
+    let opts = RenderOptions {
+        height: 420,
+        ..RenderOptions::default()
+    };
+    let sim_img = render(
+        &[
+            Layer::new(body, body_triangles, BODY_COLOUR),
+            Layer::new(truth, garment_triangles, GARMENT_COLOUR),
+        ],
+        &opts,
+    )?;
+    let err_cm: Vec<f32> = vertex_errors(pred, truth)
+        .iter()
+        .map(|e| e * 100.0)
+        .collect();
+    let colours: Vec<[u8; 3]> = err_cm
+        .iter()
+        .map(|e| error_colour(e / ERROR_SCALE_CM))
+        .collect();
+    let (net_img, values) = render_values(
+        &[
+            Layer::new(body, body_triangles, BODY_COLOUR),
+            Layer::new(pred, garment_triangles, GARMENT_COLOUR)
+                .with_vertex_colours(&colours, &err_cm),
+        ],
+        &opts,
+    )?;
+    let top = grid(&[sim_img, net_img], 2, [242, 242, 242]);
+    let bar = colour_bar(
+        ERROR_SCALE_CM as f64,
+        "network error (cm): right pair; simulator: left pair",
+        top.width.min(700),
+    );
+    Ok((stack(&[top, bar], [255, 255, 255]), values))
+}
+
+fn fmt_ms(v: (f64, f64), digits: usize) -> String {
+    format!("{:.digits$} ± {:.digits$}", v.0, v.1)
+}
+
+/// Writes the report folder `out` for `ev` (of `run` on `data`'s `split`). Returns the
+/// summaries.
+pub fn write_report(
+    out: &Path,
+    run: &Path,
+    data: &Dataset,
+    split: Split,
+    ev: &Evaluation,
+) -> Result<BTreeMap<String, Summary>, EvalError> {
+    std::fs::create_dir_all(out).map_err(|e| EvalError::Io {
+        path: out.to_path_buf(),
+        source: e,
+    })?;
+    let sums = summaries(ev);
+    let title = |m: &str| method_title(m, &ev.network);
+    let provenance = Provenance {
+        run: run.to_path_buf(),
+        run_config_sha256: sha256_file(&run.join("config.toml"))?,
+        data: data.dir.clone(),
+        dataset: data.manifest.name.clone(),
+        manifest_sha256: sha256_file(&data.dir.join("manifest.json"))?,
+        split: split.name().into(),
+        git_revision: dataset::manifest::GIT_REVISION.into(),
+        program_version: env!("CARGO_PKG_VERSION").into(),
+    };
+
+    // Curves: CSV and PNG.
+    for (name, curves, x_label, file) in [
+        (
+            "Vertices under a distance",
+            &ev.distance_curves,
+            "distance to the simulator's vertex (cm)",
+            "ap_distance",
+        ),
+        (
+            "Faces under a normal angle",
+            &ev.angle_curves,
+            "angle to the simulator's face normal (degrees)",
+            "ap_angle",
+        ),
+    ] {
+        let first = &curves[METHODS[0]];
+        let mut csv = String::from("threshold");
+        for m in METHODS {
+            csv.push(',');
+            csv.push_str(m);
+        }
+        csv.push('\n');
+        let shares: Vec<Vec<f64>> = METHODS.iter().map(|m| curves[*m].shares()).collect();
+        for (k, t) in first.thresholds.iter().enumerate() {
+            write!(csv, "{t}").unwrap();
+            for s in &shares {
+                write!(csv, ",{:.6}", s[k]).unwrap();
+            }
+            csv.push('\n');
+        }
+        write(&out.join(format!("{file}.csv")), csv.as_bytes())?;
+        let chart = Chart {
+            title: name.into(),
+            x_label: x_label.into(),
+            y_label: "share".into(),
+            x_range: (0.0, *first.thresholds.last().expect("thresholds")),
+            y_range: (0.0, 1.0),
+            series: METHODS
+                .iter()
+                .zip(&shares)
+                .enumerate()
+                .map(|(k, (m, s))| Series {
+                    label: title(m),
+                    points: first
+                        .thresholds
+                        .iter()
+                        .copied()
+                        .zip(s.iter().copied())
+                        .collect(),
+                    colour: PALETTE[k],
+                })
+                .collect(),
+        };
+        write(
+            &out.join(format!("{file}.png")),
+            &encode_png(&line_chart(&chart, 760, 480))?,
+        )?;
+    }
+
+    // Per-sample CSV.
+    let mut csv = String::from(
+        "id,family,method,edist_cm,enorm_deg,l_mc,l_rq8,l_rq16,l_rq32,strain_j,bending_j,gravity_j,interpenetration\n",
+    );
+    for s in &ev.samples {
+        let rows = METHODS
+            .iter()
+            .map(|m| (*m, &s.methods[*m]))
+            .chain(std::iter::once(("simulator", &s.simulator)));
+        for (m, f) in rows {
+            writeln!(
+                csv,
+                "{},{},{m},{:.5},{:.4},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6}",
+                s.id,
+                s.family,
+                f.edist_cm,
+                f.enorm_deg,
+                f.l_mc,
+                f.l_rq[0],
+                f.l_rq[1],
+                f.l_rq[2],
+                f.strain_j,
+                f.bending_j,
+                f.gravity_j,
+                f.interpenetration
+            )
+            .unwrap();
+        }
+    }
+    write(&out.join("samples.csv"), csv.as_bytes())?;
+
+    // Best, median and worst samples of the network.
+    let mut order: Vec<usize> = (0..ev.samples.len()).collect();
+    order.sort_by(|&a, &b| {
+        ev.samples[a].methods["network"]
+            .edist_cm
+            .total_cmp(&ev.samples[b].methods["network"].edist_cm)
+    });
+    let picks = [
+        ("best", order[0]),
+        ("median", order[order.len() / 2]),
+        ("worst", order[order.len() - 1]),
+    ];
+    let ids: Vec<u64> = picks.iter().map(|p| ev.samples[p.1].id).collect();
+    let rows = rows_of(data, split, &ids)?;
+    let net = Predictor::open(run, &data.statics)?;
+    let (preds, _) = net.predict_rows(&rows);
+    let st = &data.statics;
+    for ((name, _), (row, pred)) in picks.iter().zip(rows.iter().zip(&preds)) {
+        let (img, values) = sample_render(
+            &row.body,
+            &st.body_triangles,
+            &st.garment_triangles,
+            &row.draped,
+            pred,
+        )?;
+        write(&out.join(format!("{name}.png")), &encode_png(&img)?)?;
+        write(
+            &out.join(format!("{name}-error.exr")),
+            &crate::exr::encode_gray(values.width, values.height, &values.data),
+        )?;
+    }
+
+    // metrics.json.
+    #[derive(Serialize)]
+    struct Json<'a> {
+        provenance: &'a Provenance,
+        network: &'a str,
+        samples_evaluated: usize,
+        training_samples: usize,
+        summaries: &'a BTreeMap<String, Summary>,
+        curves: BTreeMap<&'a str, BTreeMap<String, Vec<(f64, f64)>>>,
+        network_seconds_per_drape: f64,
+        batch: usize,
+        renders: BTreeMap<&'a str, u64>,
+        samples: &'a [crate::evaluate::SampleEval],
+    }
+    let curve_points = |c: &BTreeMap<String, crate::metrics::Curve>| {
+        c.iter()
+            .map(|(m, c)| {
+                (
+                    m.clone(),
+                    c.thresholds.iter().copied().zip(c.shares()).collect(),
+                )
+            })
+            .collect()
+    };
+    let json = Json {
+        provenance: &provenance,
+        network: &ev.network,
+        samples_evaluated: ev.samples.len(),
+        training_samples: ev.train_samples,
+        summaries: &sums,
+        curves: BTreeMap::from([
+            ("distance_cm", curve_points(&ev.distance_curves)),
+            ("angle_deg", curve_points(&ev.angle_curves)),
+        ]),
+        network_seconds_per_drape: ev.network_seconds_per_drape,
+        batch: ev.batch,
+        renders: picks
+            .iter()
+            .zip(&ids)
+            .map(|((n, _), id)| (*n, *id))
+            .collect(),
+        samples: &ev.samples,
+    };
+    write(
+        &out.join("metrics.json"),
+        &serde_json::to_vec_pretty(&json).expect("metrics serialise"),
+    )?;
+
+    // report.md.
+    let mut md = String::new();
+    let net_sum = &sums["network"];
+    writeln!(
+        md,
+        "# Evaluation: {} on {} ({} split)\n",
+        ev.network, provenance.dataset, provenance.split
+    )
+    .unwrap();
+    writeln!(
+        md,
+        "{} {} samples, {} training samples for the baselines. Run `{}` (config sha256 `{}`), dataset `{}` (manifest sha256 `{}`), program {} at git `{}`. Every figure here is also in `metrics.json`; per sample in `samples.csv`.\n",
+        ev.samples.len(),
+        provenance.split,
+        ev.train_samples,
+        run.display(),
+        &provenance.run_config_sha256[..12],
+        data.dir.display(),
+        &provenance.manifest_sha256[..12],
+        provenance.program_version,
+        provenance.git_revision
+    )
+    .unwrap();
+    writeln!(md, "## Accuracy (the paper's Table 1 metrics)\n").unwrap();
+    writeln!(
+        md,
+        "Mean ± standard deviation over samples. Edist: Eq. 17, mean vertex distance to the simulator's drape. Enorm: Eq. 18, mean angle between face normals; our garments have about {} vertices, the paper's 10k, and finer meshes have smaller face-to-face angles, so Enorm compares across resolutions only roughly.\n",
+        data.statics.garment_vertices.len()
+    )
+    .unwrap();
+    writeln!(
+        md,
+        "| method | Edist (cm) | Enorm (°) | vertices under 1 cm | faces under 10° |"
+    )
+    .unwrap();
+    writeln!(md, "|---|---|---|---|---|").unwrap();
+    for m in METHODS {
+        let s = &sums[m];
+        writeln!(
+            md,
+            "| {} | {} | {} | {:.1}% | {:.1}% |",
+            title(m),
+            fmt_ms(s.edist_cm, 2),
+            fmt_ms(s.enorm_deg, 2),
+            100.0 * ev.distance_curves[m].share_at(1.0),
+            100.0 * ev.angle_curves[m].share_at(10.0)
+        )
+        .unwrap();
+    }
+    let dqs = sums["dqs"].edist_cm.0;
+    writeln!(
+        md,
+        "\n{} is at {:.1}% of the DQS baseline's Edist; the mean-residual and nearest-neighbour baselines at {:.1}% and {:.1}%.\n",
+        ev.network,
+        100.0 * net_sum.edist_cm.0 / dqs,
+        100.0 * sums["mean-residual"].edist_cm.0 / dqs,
+        100.0 * sums["nearest-neighbour"].edist_cm.0 / dqs
+    )
+    .unwrap();
+    writeln!(
+        md,
+        "![vertex distances](ap_distance.png) ![face angles](ap_angle.png)\n"
+    )
+    .unwrap();
+    writeln!(
+        md,
+        "Average-precision curves (the paper's Fig. 9): `ap_distance.csv`, `ap_angle.csv`.\n"
+    )
+    .unwrap();
+    writeln!(md, "## Curvature (the paper's Table 7 metrics)\n").unwrap();
+    writeln!(md, "Means over samples of L_MC (m^-2) and L_RQ^K (m^4) against the simulator's drape; the ratio column divides L_MC and L_RQ^8 by the network's.\n").unwrap();
+    writeln!(
+        md,
+        "| method | L_MC | L_RQ^8 | L_RQ^16 | L_RQ^32 | L_MC / network | L_RQ^8 / network |"
+    )
+    .unwrap();
+    writeln!(md, "|---|---|---|---|---|---|---|").unwrap();
+    for m in METHODS {
+        let s = &sums[m];
+        writeln!(
+            md,
+            "| {} | {:.4e} | {:.4e} | {:.4e} | {:.4e} | {:.2} | {:.2} |",
+            title(m),
+            s.l_mc.0,
+            s.l_rq[0].0,
+            s.l_rq[1].0,
+            s.l_rq[2].0,
+            s.l_mc.0 / net_sum.l_mc.0,
+            s.l_rq[0].0 / net_sum.l_rq[0].0
+        )
+        .unwrap();
+    }
+    writeln!(md, "\n## Physics (DrapeNet's metrics)\n").unwrap();
+    writeln!(md, "Energies of each garment with SNUG's fabric (StVK membrane, dihedral bending with a flat rest angle, gravity above the body's lowest vertex; `eval/src/metrics.rs`), and the share of garment vertices inside the body.\n").unwrap();
+    writeln!(
+        md,
+        "| garment | strain (J) | bending (J) | gravity (J) | vertices inside the body |"
+    )
+    .unwrap();
+    writeln!(md, "|---|---|---|---|---|").unwrap();
+    for m in ["simulator"].into_iter().chain(METHODS) {
+        let s = &sums[m];
+        writeln!(
+            md,
+            "| {} | {} | {} | {} | {:.2}% |",
+            title(m),
+            fmt_ms(s.strain_j, 4),
+            fmt_ms(s.bending_j, 5),
+            fmt_ms(s.gravity_j, 3),
+            100.0 * s.interpenetration.0
+        )
+        .unwrap();
+    }
+    writeln!(md, "\n## Samples\n").unwrap();
+    writeln!(md, "Left pair: the simulator's drape (front, side). Right pair: the network's, coloured by its distance to the simulator's (0 to {ERROR_SCALE_CM} cm; the same values as 32-bit floats in `*-error.exr`, NaN off the garment).\n").unwrap();
+    for ((name, k), id) in picks.iter().zip(&ids) {
+        let s = &ev.samples[*k];
+        writeln!(
+            md,
+            "**{name}**: sample {id} ({}), Edist {:.2} cm (DQS {:.2} cm), Enorm {:.1}°\n\n![{name}]({name}.png)\n",
+            s.family, s.methods["network"].edist_cm, s.methods["dqs"].edist_cm, s.methods["network"].enorm_deg
+        )
+        .unwrap();
+    }
+    writeln!(
+        md,
+        "Network time in this evaluation: {:.1} ms per drape at batch {} (inputs and both streams; `drape bench speedup` measures the speed-up). Evaluation wall time {:.1} s.",
+        1e3 * ev.network_seconds_per_drape,
+        ev.batch,
+        ev.seconds
+    )
+    .unwrap();
+    write(&out.join("report.md"), md.as_bytes())?;
+    Ok(sums)
+}

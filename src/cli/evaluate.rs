@@ -1,0 +1,83 @@
+//! `drape eval`: a trained network and the baselines on a dataset split, as a report folder.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use dataset::config::Split;
+use dataset::reader::Dataset;
+use eval::evaluate::{EvalOptions, METHODS, evaluate, method_title};
+use eval::report::write_report;
+
+/// `drape eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Run folder of a trained network (`drape train -o`); its best weights are used.
+    #[arg(long = "model", value_name = "RUN_DIR")]
+    run: PathBuf,
+    /// Dataset folder (default: the run config's `data`).
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// Split to evaluate: train, val or test.
+    #[arg(long, default_value = "test")]
+    split: String,
+    /// Report folder: report.md, metrics.json, samples.csv, curves (CSV, PNG), renders.
+    #[arg(short, long, value_name = "REPORT_DIR")]
+    output: PathBuf,
+    /// Samples per network batch.
+    #[arg(long, default_value_t = 8)]
+    batch: usize,
+    /// Evaluate only the first N samples of the split.
+    #[arg(long, value_name = "N")]
+    limit: Option<usize>,
+}
+
+/// Runs `drape eval`.
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let split = Split::parse(&args.split)?;
+    let (config, _) = learn::run::open_run(&args.run)?;
+    let dir = args.data.unwrap_or_else(|| config.data.clone());
+    let data = Dataset::open(&dir)?;
+    if args.limit == Some(0) {
+        anyhow::bail!("--limit must be at least 1");
+    }
+    eprintln!(
+        "evaluating {} on {} ({} split, {} samples)",
+        args.run.display(),
+        dir.display(),
+        split.name(),
+        data.count(split).min(args.limit.unwrap_or(usize::MAX))
+    );
+    let ev = evaluate(
+        &args.run,
+        &data,
+        &EvalOptions {
+            split,
+            batch: args.batch,
+            limit: args.limit,
+            progress: true,
+        },
+    )?;
+    let sums = write_report(&args.output, &args.run, &data, split, &ev)?;
+    println!(
+        "{:<20} {:>14} {:>14}",
+        "method", "Edist (cm)", "Enorm (deg)"
+    );
+    for m in METHODS {
+        let s = &sums[m];
+        println!(
+            "{:<20} {:>6.2} ± {:<5.2} {:>6.2} ± {:<5.2}",
+            method_title(m, &ev.network),
+            s.edist_cm.0,
+            s.edist_cm.1,
+            s.enorm_deg.0,
+            s.enorm_deg.1
+        );
+    }
+    println!(
+        "{} samples in {:.1} s -> {}",
+        ev.samples.len(),
+        ev.seconds,
+        args.output.join("report.md").display()
+    );
+    Ok(())
+}
