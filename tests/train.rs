@@ -296,6 +296,40 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         .arg(&report));
     assert!(!ok && text.contains("holdout"), "{text}");
 
+    // drape bench speedup: one sample redraped with the dataset's config on all threads
+    // lands on the dataset's drape, and every time is positive.
+    let speed = tmp.path().join("speed.json");
+    let (ok, text) = run(drape()
+        .args([
+            "bench",
+            "speedup",
+            "--samples",
+            "1",
+            "--repeats",
+            "1",
+            "--batch",
+            "2",
+            "--model",
+        ])
+        .arg(&run_dir)
+        .arg("--data")
+        .arg(&data)
+        .arg("--json")
+        .arg(&speed));
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("speed-up") && text.contains("GarNet-Global-Params"),
+        "{text}"
+    );
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&speed).unwrap()).unwrap();
+    let s = &r["samples"][0];
+    assert!(s["pbs_vs_dataset_cm"].as_f64().unwrap() < 1e-4, "{s}");
+    assert!(s["dagger_vs_dataset_cm"].as_f64().unwrap() < 5.0, "{s}");
+    for k in ["pbs", "pbs_dagger", "warp", "inputs", "network"] {
+        assert!(s[k].as_f64().unwrap() > 0.0, "{k}: {s}");
+    }
+    assert!(r["batched_per_drape"].as_f64().unwrap() > 0.0 && r["flops"].as_f64().unwrap() > 1e6);
+
     // Unknown fields and out-of-range values are named.
     let bad = config(tmp.path(), 2, "local", "\nwidth = 3");
     let (ok, text) = train(&bad, &data, &tmp.path().join("bad"), &[]);

@@ -8,6 +8,7 @@
 //! - [`evaluate`]: a trained network and the DQS, mean-residual and nearest-neighbour
 //!   baselines measured on a dataset split (`drape eval`); [`report`] writes the report
 //!   folder; [`exr`] the float error images.
+//! - [`speed`]: the speed-up of a network over the simulator (`drape bench speedup`).
 //! - [`plot`]: line charts (the average-precision curves) and colour bars as images.
 #![warn(missing_docs)]
 
@@ -17,3 +18,4 @@ pub mod metrics;
 pub mod plot;
 pub mod render;
 pub mod report;
+pub mod speed;

@@ -396,3 +396,50 @@ impl burn::module::ModuleMapper for Jitter {
         p.map(|t| t + 0.1)
     }
 }
+
+#[test]
+fn forward_flops_match_hand_counts() {
+    use learn::model::{LOCAL_WIDTH, forward_flops};
+    // Global-Params without convolutions' cost beyond the dense layers: garment MLP 3->4
+    // on 10 vertices, conv_in 4->2 (+ 5 parameters -> 2 once), no blocks, fusion_in
+    // (4 + 2 + 2) -> 3 (+ 5 -> 3 once), out 3 -> 3.
+    let c = ModelConfig {
+        variant: Variant::GlobalParams,
+        garment_mlp: vec![4],
+        conv_width: 2,
+        conv_blocks: 0,
+        fusion: vec![3],
+        ..ModelConfig::default()
+    };
+    let expect = 2.0
+        * (10.0 * 3.0 * 4.0
+            + 10.0 * 4.0 * 2.0
+            + 5.0 * 2.0
+            + 10.0 * 8.0 * 3.0
+            + 5.0 * 3.0
+            + 10.0 * 3.0 * 3.0);
+    assert_eq!(forward_flops(&c, 5, 10, 7), expect);
+    // One FeaStNet block adds u (C+3 -> M), the [M, K] x [K, C+3] aggregation and the
+    // (M (C+3)) -> C map on every vertex.
+    let one = ModelConfig {
+        conv_blocks: 1,
+        ..c.clone()
+    };
+    let (ci, m, k, n) = (5.0, 4.0, 7.0, 10.0);
+    let block = 2.0 * n * (ci * m + m * k * ci + m * ci * 2.0);
+    assert_eq!(forward_flops(&one, 5, 10, 7) - expect, block);
+    // Local over Global: the local reduction on the body points and its fusion input.
+    let g = ModelConfig {
+        variant: Variant::Global,
+        ..small_config(Variant::Global)
+    };
+    let l = ModelConfig {
+        variant: Variant::Local,
+        ..g.clone()
+    };
+    let extra = 2.0 * (60.0 * 16.0 * LOCAL_WIDTH as f64 + 10.0 * LOCAL_WIDTH as f64 * 16.0);
+    assert_eq!(
+        forward_flops(&l, 5, 10, 7) - forward_flops(&g, 5, 10, 7),
+        extra
+    );
+}

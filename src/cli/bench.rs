@@ -84,6 +84,30 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
+    /// The speed-up of a trained network over the simulator on the same test samples, in
+    /// one run: the full drape (PBS) and PBS-dagger (from the DQS warp, body in the target
+    /// pose) with the dataset's simulator config against the network (DQS warp, inputs,
+    /// both streams) at batch 1 and 16; GFLOPs of every variant.
+    Speedup {
+        /// Run folder of a trained network.
+        #[arg(long = "model", value_name = "RUN_DIR")]
+        run: std::path::PathBuf,
+        /// Dataset folder (default: the run config's `data`).
+        #[arg(long, value_name = "DIR")]
+        data: Option<std::path::PathBuf>,
+        /// Test samples timed.
+        #[arg(long, default_value_t = 10)]
+        samples: usize,
+        /// Batch size of the batched measurement.
+        #[arg(long, default_value_t = 16)]
+        batch: usize,
+        /// Timed repeats of each network measurement (median; after a warm-up).
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
+        /// Also write the figures as JSON.
+        #[arg(long, value_name = "FILE.json")]
+        json: Option<std::path::PathBuf>,
+    },
 }
 
 /// A variant name as in the configs.
@@ -196,6 +220,161 @@ fn bench_predict(
     Ok(())
 }
 
+/// `drape bench speedup`.
+fn bench_speedup(
+    ctx: &Context,
+    run: &std::path::Path,
+    data: Option<std::path::PathBuf>,
+    samples: usize,
+    batch: usize,
+    repeats: usize,
+    json: Option<std::path::PathBuf>,
+) -> anyhow::Result<()> {
+    let (config, _) = learn::run::open_run(run)?;
+    let dir = data.unwrap_or_else(|| config.data.clone());
+    let data = dataset::reader::Dataset::open(&dir)?;
+    let dc = data.manifest.dataset_config()?;
+    let (model, _, template) =
+        dataset::generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
+    let drift = template
+        .mesh
+        .vertices
+        .iter()
+        .zip(&data.statics.garment_vertices)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max);
+    if template.mesh.vertices.len() != data.statics.garment_vertices.len() || drift > 1e-5 {
+        anyhow::bail!(
+            "the {} template built here differs from the one {} was made with (vertices {} and {}, largest offset {drift} m): rebuild the dataset or the template",
+            dc.garment,
+            dir.display(),
+            template.mesh.vertices.len(),
+            data.statics.garment_vertices.len()
+        );
+    }
+    let threads = rayon::current_num_threads();
+    println!(
+        "{} ({} vertices) from {}; {} test samples of {}; simulator config of the dataset ({} substeps at {} fps); {threads} threads",
+        dc.garment,
+        template.mesh.vertices.len(),
+        run.display(),
+        samples,
+        dc.name,
+        dc.sim.substeps,
+        dc.sim.fps
+    );
+    println!(
+        "{:>8} {:>9} {:>7} {:>10} {:>7} {:>9} {:>10} {:>11} {:>10}",
+        "sample",
+        "PBS s",
+        "frames",
+        "PBS-dag s",
+        "frames",
+        "warp ms",
+        "inputs ms",
+        "network ms",
+        "speed-up"
+    );
+    let r = eval::speed::measure(
+        run,
+        &data,
+        &model,
+        &template,
+        &eval::speed::SpeedOptions {
+            samples,
+            batch,
+            repeats,
+            split: dataset::config::Split::Test,
+        },
+        &mut |s| {
+            let net = s.warp + s.inputs + s.network;
+            println!(
+                "{:>8} {:>9.2} {:>7} {:>10.2} {:>7} {:>9.2} {:>10.2} {:>11.2} {:>9.0}x{}",
+                s.id,
+                s.pbs,
+                s.pbs_frames,
+                s.pbs_dagger,
+                s.pbs_dagger_frames,
+                s.warp * 1e3,
+                s.inputs * 1e3,
+                s.network * 1e3,
+                s.pbs / net,
+                if s.converged {
+                    ""
+                } else {
+                    "  (a drape did not converge)"
+                }
+            );
+        },
+    )?;
+    let (pbs, dagger, one, many) = (
+        r.pbs(),
+        r.pbs_dagger(),
+        r.network_batch1(),
+        r.batched_per_drape,
+    );
+    println!(
+        "\nper drape, mean over samples ({} vertices, {} threads):",
+        r.vertices, r.threads
+    );
+    println!("  simulator, full drape (PBS)        {:>9.3} s", pbs);
+    println!("  simulator, from the warp (PBS-dag) {:>9.3} s", dagger);
+    println!(
+        "  {} batch 1                {:>9.1} ms   speed-up {:>6.1}x over PBS, {:>5.1}x over PBS-dagger",
+        r.network,
+        one * 1e3,
+        pbs / one,
+        dagger / one
+    );
+    println!(
+        "  {} batch {:<2} (per drape)   {:>9.1} ms   speed-up {:>6.1}x over PBS, {:>5.1}x over PBS-dagger",
+        r.network,
+        r.batch,
+        many * 1e3,
+        pbs / many,
+        dagger / many
+    );
+    let agree = r
+        .samples
+        .iter()
+        .map(|s| s.pbs_vs_dataset_cm)
+        .fold(0.0, f64::max);
+    println!("  this run's full drapes vs the dataset's: largest Edist {agree:.2e} cm");
+    println!(
+        "  {}: {} parameters, {:.3} GFLOPs per forward pass",
+        r.network,
+        r.parameters,
+        r.flops / 1e9
+    );
+    let topology = learn::topology::Topology::new(r.vertices, &data.statics.garment_triangles);
+    let params = dataset::shard::SHAPE_FIELDS.len() + 4 * data.statics.bones;
+    println!(
+        "GFLOPs per forward pass of each variant at this run's widths and {} vertices:",
+        r.vertices
+    );
+    for v in [
+        learn::config::Variant::Naive,
+        learn::config::Variant::Global,
+        learn::config::Variant::Local,
+        learn::config::Variant::GlobalParams,
+    ] {
+        let c = learn::config::ModelConfig {
+            variant: v,
+            ..config.model.clone()
+        };
+        println!(
+            "  {:<20} {:.3}",
+            v.paper_name(),
+            learn::model::forward_flops(&c, params, r.vertices, topology.slots) / 1e9
+        );
+    }
+    if let Some(p) = json {
+        std::fs::write(&p, serde_json::to_vec_pretty(&r)?)?;
+        println!("figures -> {}", p.display());
+    }
+    Ok(())
+}
+
 /// Peak resident memory of this process (MB), from /proc where there is one.
 fn peak_memory_mb() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -221,6 +400,14 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             batch_size,
             variant,
         } => return bench_train(config, data, batches, batch_size, variant),
+        BenchCommand::Speedup {
+            run,
+            data,
+            samples,
+            batch,
+            repeats,
+            json,
+        } => return bench_speedup(ctx, &run, data, samples, batch, repeats, json),
         BenchCommand::Predict {
             config,
             garment,

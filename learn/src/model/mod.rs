@@ -285,3 +285,58 @@ impl GarNet {
         self.out.forward(self.fusion.forward(f)) // [B, N, 3]
     }
 }
+
+/// Floating-point operations of one forward pass for one sample (a multiply-add counts
+/// 2): the dense layers, the spatial transformer's 3x3 products and FeaStNet's padded
+/// aggregation `[M, K] x [K, C]` as executed (`slots` = K, the padded neighbourhood size),
+/// for `vertices` garment vertices and `params` shape-and-pose inputs (Global-Params).
+/// Activations, softmax, pooling and gathers are left out: they are a few operations per
+/// element against the dense layers' hundreds.
+pub fn forward_flops(c: &ModelConfig, params: usize, vertices: usize, slots: usize) -> f64 {
+    let n = vertices as f64;
+    let p = c.body_points as f64;
+    let dense = |rows: f64, i: usize, o: usize| 2.0 * rows * i as f64 * o as f64;
+    let mlp = |rows: f64, input: usize, widths: &[usize]| {
+        let mut i = input;
+        let mut f = 0.0;
+        for &w in widths {
+            f += dense(rows, i, w);
+            i = w;
+        }
+        f
+    };
+    let mut f = 0.0;
+    let global = match c.variant {
+        Variant::GlobalParams => params,
+        _ => *c.body_mlp2.last().unwrap(),
+    };
+    if c.variant != Variant::GlobalParams {
+        // Spatial transformer, the two 3x3 products, then the body MLPs.
+        f += mlp(p, 6, &c.stn_mlp);
+        f += mlp(1.0, *c.stn_mlp.last().unwrap(), &c.stn_head);
+        f += dense(1.0, *c.stn_head.last().unwrap(), 9);
+        f += 2.0 * dense(p, 3, 3);
+        f += mlp(p, 6, &c.body_mlp1);
+        let (point, last) = c.body_mlp2.split_at(c.body_mlp2.len() - 1);
+        f += mlp(p, c.body_mlp1.last().unwrap() + 6, point);
+        f += mlp(p, *point.last().unwrap(), last);
+    }
+    let cg = *c.garment_mlp.last().unwrap();
+    f += mlp(n, 3, &c.garment_mlp);
+    f += dense(n, cg, c.conv_width) + dense(1.0, global, c.conv_width);
+    if c.variant.has_mesh_convolutions() {
+        let (ci, m, k) = (c.conv_width + 3, c.conv_heads, slots);
+        let block =
+            dense(n, ci, m) + 2.0 * n * (m * k * ci) as f64 + dense(n, m * ci, c.conv_width);
+        f += c.conv_blocks as f64 * block;
+    }
+    let mut fusion_in = cg + 2 * c.conv_width;
+    if c.variant == Variant::Local {
+        f += dense(p, c.body_mlp2[c.body_mlp2.len() - 2], LOCAL_WIDTH);
+        fusion_in += LOCAL_WIDTH;
+    }
+    f += dense(n, fusion_in, c.fusion[0]) + dense(1.0, global, c.fusion[0]);
+    f += mlp(n, c.fusion[0], &c.fusion[1..]);
+    f += dense(n, *c.fusion.last().unwrap(), 3);
+    f
+}

@@ -72,6 +72,21 @@ impl ShapeParams {
         ]
     }
 
+    /// The inverse of [`ShapeParams::named`]: parameters from their values in that order.
+    pub fn from_named(v: [f32; 9]) -> Self {
+        Self {
+            gender: v[0],
+            age: v[1],
+            muscle: v[2],
+            weight: v[3],
+            height: v[4],
+            proportions: v[5],
+            african: v[6],
+            asian: v[7],
+            caucasian: v[8],
+        }
+    }
+
     /// Checks that every parameter is finite and in [0, 1] and that the race shares do not
     /// all vanish.
     pub fn validate(&self) -> Result<(), BodyError> {

@@ -1,0 +1,294 @@
+//! `drape bench speedup`: simulator time over network time per drape, measured in one run
+//! on the same test samples, at the same vertex count, with the simulator config that made
+//! the dataset.
+//!
+//! - Simulator, full drape (the paper's PBS): from the template on the canonical body,
+//!   morphing to the sample's shape and pose, then settling (the dataset's protocol).
+//! - Simulator, PBS-dagger: from the DQS-warped garment M with the body already in the
+//!   target pose, settling only.
+//! - Network: the DQS warp, the inputs (body normals, the k-NN searches of GarNet-Local)
+//!   and both streams, at batch 1 (per sample) and batch 16 (per sample of a batch).
+//!
+//! The simulator runs one drape at a time on all of rayon's threads (constraint colours in
+//! parallel), the network on the same threads.
+
+use std::time::Instant;
+
+use dataset::config::Split;
+use dataset::reader::Dataset;
+use dataset::shard::Row;
+use learn::predict::Predictor;
+use serde::Serialize;
+use sim::body::pose::Pose;
+use sim::body::{BodyModel, PosedBody, ShapeParams, ShapedBody};
+use sim::cloth::ClothModel;
+use sim::cloth::drape::{self, BodyMorph, StaticBody};
+use sim::garment::Template;
+
+use crate::evaluate::EvalError;
+use crate::metrics::edist_cm;
+
+/// Options of the measurement.
+#[derive(Debug, Clone)]
+pub struct SpeedOptions {
+    /// Test samples timed (the first ones of the split).
+    pub samples: usize,
+    /// The batched measurement's batch size.
+    pub batch: usize,
+    /// Timed repeats of each network measurement (after one warm-up); the median counts.
+    pub repeats: usize,
+    /// Split to take samples from.
+    pub split: Split,
+}
+
+/// Times of one sample (s).
+#[derive(Debug, Clone, Serialize)]
+pub struct SampleSpeed {
+    /// Sample id.
+    pub id: u64,
+    /// Full simulator drape (morph and settle), wall time.
+    pub pbs: f64,
+    /// Frames of that drape (morph + settle).
+    pub pbs_frames: u32,
+    /// PBS-dagger: settle from the warped garment, wall time.
+    pub pbs_dagger: f64,
+    /// Frames of that drape.
+    pub pbs_dagger_frames: u32,
+    /// Whether both drapes converged.
+    pub converged: bool,
+    /// Edist between this run's full drape and the dataset's (cm; 0 when the simulator is
+    /// deterministic across thread counts, as it is designed to be).
+    pub pbs_vs_dataset_cm: f64,
+    /// Edist of PBS-dagger's drape to the dataset's (cm).
+    pub dagger_vs_dataset_cm: f64,
+    /// DQS warp (s).
+    pub warp: f64,
+    /// Inputs at batch 1 (s).
+    pub inputs: f64,
+    /// Both streams at batch 1 (s).
+    pub network: f64,
+}
+
+/// The whole measurement.
+#[derive(Debug, Clone, Serialize)]
+pub struct SpeedReport {
+    /// Network variant.
+    pub network: String,
+    /// Garment vertices.
+    pub vertices: usize,
+    /// Threads used.
+    pub threads: usize,
+    /// Per sample.
+    pub samples: Vec<SampleSpeed>,
+    /// Batch of the batched measurement.
+    pub batch: usize,
+    /// Per drape at that batch: warp, inputs and network (s).
+    pub batched_per_drape: f64,
+    /// Network forward FLOPs per drape.
+    pub flops: f64,
+    /// Parameters of the network.
+    pub parameters: usize,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+impl SpeedReport {
+    /// Mean full-drape time (s).
+    pub fn pbs(&self) -> f64 {
+        self.samples.iter().map(|s| s.pbs).sum::<f64>() / self.samples.len() as f64
+    }
+    /// Mean PBS-dagger time (s).
+    pub fn pbs_dagger(&self) -> f64 {
+        self.samples.iter().map(|s| s.pbs_dagger).sum::<f64>() / self.samples.len() as f64
+    }
+    /// Mean network time per drape at batch 1 (warp, inputs, network) (s).
+    pub fn network_batch1(&self) -> f64 {
+        self.samples
+            .iter()
+            .map(|s| s.warp + s.inputs + s.network)
+            .sum::<f64>()
+            / self.samples.len() as f64
+    }
+}
+
+/// The sample's body, rebuilt from its row: shaped and posed bodies.
+fn bodies<'m>(
+    model: &'m BodyModel,
+    row: &Row,
+) -> Result<(ShapeParams, Pose, ShapedBody<'m>), EvalError> {
+    let shape = ShapeParams::from_named(row.shape);
+    let pose = Pose {
+        rotations: row.pose.clone(),
+        root_translation: row.root,
+    };
+    let shaped = model
+        .shape(&shape)
+        .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))?;
+    Ok((shape, pose, shaped))
+}
+
+/// Measures the speed-up of the network of `run` on the first samples of `data`'s split.
+/// `progress` is called with a line per finished sample.
+pub fn measure(
+    run: &std::path::Path,
+    data: &Dataset,
+    model: &BodyModel,
+    template: &Template,
+    opts: &SpeedOptions,
+    progress: &mut dyn FnMut(&SampleSpeed),
+) -> Result<SpeedReport, EvalError> {
+    let config = data.manifest.dataset_config()?;
+    let net = Predictor::open(run, &data.statics)?;
+    if template.mesh.vertices.len() != data.statics.garment_vertices.len() {
+        return Err(EvalError::Invalid(format!(
+            "the template has {} vertices, the dataset {}",
+            template.mesh.vertices.len(),
+            data.statics.garment_vertices.len()
+        )));
+    }
+    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
+        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
+    let canonical = model
+        .shape(&ShapeParams::default())
+        .map_err(|e| EvalError::Invalid(e.to_string()))?;
+    let rows: Vec<Row> = data
+        .samples(opts.split)
+        .take(opts.samples.max(1))
+        .map(|s| s.map(|s| s.row))
+        .collect::<Result<_, _>>()?;
+    if rows.is_empty() {
+        return Err(EvalError::Invalid(format!(
+            "{} has no converged {} samples",
+            data.dir.display(),
+            opts.split.name()
+        )));
+    }
+    let repeats = opts.repeats.max(1);
+    // Network at batch 1: warp, inputs, streams; one warm-up call first.
+    let time_network = |row: &Row| -> Result<(f64, f64, f64), EvalError> {
+        let (_, pose, shaped) = bodies(model, row)?;
+        let posed = shaped.pose(&pose);
+        let (mut w, mut i, mut n) = (Vec::new(), Vec::new(), Vec::new());
+        for r in 0..=repeats {
+            let t0 = Instant::now();
+            let warped = template.warp(&canonical, &shaped, &posed);
+            let t1 = Instant::now();
+            let x = net.prepare(
+                &posed.vertices,
+                row.root,
+                learn::data::row_params(row),
+                &warped,
+            );
+            let t2 = Instant::now();
+            let out = net.predict(&[&x]);
+            let t3 = Instant::now();
+            assert_eq!(out.len(), 1);
+            if r > 0 {
+                w.push((t1 - t0).as_secs_f64());
+                i.push((t2 - t1).as_secs_f64());
+                n.push((t3 - t2).as_secs_f64());
+            }
+        }
+        Ok((median(w), median(i), median(n)))
+    };
+    let mut samples = Vec::new();
+    for row in &rows {
+        let (shape, pose, shaped) = bodies(model, row)?;
+        let posed = shaped.pose(&pose);
+        let motion = BodyMorph::new(
+            model,
+            ShapeParams::default(),
+            shape,
+            pose.clone(),
+            config.sim.morph_frames,
+        )
+        .map_err(|e| EvalError::Invalid(e.to_string()))?;
+        let full = drape::drape(
+            &cloth,
+            &template.mesh.vertices,
+            &motion,
+            &config.sim,
+            true,
+            &mut |_| {},
+        );
+        let still = StaticBody {
+            vertices: posed.vertices.clone(),
+            triangles: model.triangles.clone(),
+        };
+        let dagger = drape::drape(&cloth, &row.warped, &still, &config.sim, true, &mut |_| {});
+        let (warp, inputs, network) = time_network(row)?;
+        let s = SampleSpeed {
+            id: row.id,
+            pbs: full.report.wall_time,
+            pbs_frames: full.report.morph_frames + full.report.settle_frames,
+            pbs_dagger: dagger.report.wall_time,
+            pbs_dagger_frames: dagger.report.morph_frames + dagger.report.settle_frames,
+            converged: full.report.converged && dagger.report.converged,
+            pbs_vs_dataset_cm: edist_cm(&full.positions, &row.draped),
+            dagger_vs_dataset_cm: edist_cm(&dagger.positions, &row.draped),
+            warp,
+            inputs,
+            network,
+        };
+        progress(&s);
+        samples.push(s);
+    }
+    // Batched: `batch` samples (the timed ones, repeated if fewer), warp and inputs
+    // included, per drape.
+    let b = opts.batch.max(1);
+    let batch_rows: Vec<&Row> = rows.iter().cycle().take(b).collect();
+    let batch_bodies: Vec<(ShapedBody, PosedBody)> = batch_rows
+        .iter()
+        .map(|row| {
+            let (_, pose, shaped) = bodies(model, row)?;
+            let posed = shaped.pose(&pose);
+            Ok((shaped, posed))
+        })
+        .collect::<Result<_, EvalError>>()?;
+    let mut per = Vec::new();
+    for r in 0..=repeats {
+        let t0 = Instant::now();
+        let prepared: Vec<learn::data::Prepared> = batch_rows
+            .iter()
+            .zip(&batch_bodies)
+            .map(|(row, (shaped, posed))| {
+                let warped = template.warp(&canonical, shaped, posed);
+                net.prepare(
+                    &posed.vertices,
+                    row.root,
+                    learn::data::row_params(row),
+                    &warped,
+                )
+            })
+            .collect();
+        let refs: Vec<&learn::data::Prepared> = prepared.iter().collect();
+        let out = net.predict(&refs);
+        assert_eq!(out.len(), b);
+        if r > 0 {
+            per.push(t0.elapsed().as_secs_f64() / b as f64);
+        }
+    }
+    let topology = learn::topology::Topology::new(
+        data.statics.garment_vertices.len(),
+        &data.statics.garment_triangles,
+    );
+    let params = dataset::shard::SHAPE_FIELDS.len() + 4 * data.statics.bones;
+    Ok(SpeedReport {
+        network: net.config.model.variant.paper_name().to_string(),
+        vertices: data.statics.garment_vertices.len(),
+        threads: rayon::current_num_threads(),
+        samples,
+        batch: b,
+        batched_per_drape: median(per),
+        flops: learn::model::forward_flops(
+            &net.config.model,
+            params,
+            data.statics.garment_vertices.len(),
+            topology.slots,
+        ),
+        parameters: net.parameters(),
+    })
+}
