@@ -230,6 +230,34 @@ pub fn load_inputs(
     Ok((model, library, template))
 }
 
+/// Drapes samples `ids` of `config` again, exactly as `drape gen` did (the same plan,
+/// body, pose, template and simulator config; one drape per thread), without writing
+/// anything: rows (`None` for a failed drape) and records, in the order of `ids`.
+pub fn redrape(
+    config: &DatasetConfig,
+    assets: &Path,
+    ids: &[u64],
+) -> Result<Vec<(Option<Row>, SampleRecord)>, DatasetError> {
+    use rayon::prelude::*;
+    let total = config.total_samples();
+    if let Some(bad) = ids.iter().find(|&&id| id >= total) {
+        return Err(DatasetError::Invalid(format!(
+            "sample {bad} does not exist: {} has {total} samples",
+            config.name
+        )));
+    }
+    let (model, library, template) = load_inputs(config, assets, &mut |_| {})?;
+    let job = Job {
+        config,
+        model: &model,
+        template: &template,
+        cloth: &ClothModel::new(&template.mesh, &config.sim, &[])?,
+        poser: &Poser::new(config, &model, library)?,
+        canonical: model.shape(&ShapeParams::default())?,
+    };
+    ids.par_iter().map(|&id| job.run(id)).collect()
+}
+
 /// Assembles a shard whose samples are all finished: writes the shard, then its record,
 /// then removes the partial files.
 fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, DatasetError> {

@@ -117,7 +117,7 @@ fn sha256_file(path: &Path) -> Result<String, EvalError> {
 
 /// Body, simulator garment | body, network garment coloured by its error, with a colour
 /// bar; and the error image (cm) of the network view.
-fn sample_render(
+pub fn sample_render(
     body: &[Vec3],
     body_triangles: &[[u32; 3]],
     garment_triangles: &[[u32; 3]],

@@ -7,6 +7,7 @@ mod evaluate;
 mod garment;
 mod learn;
 mod pose_spec;
+mod quickstart;
 mod simulate;
 
 use std::path::PathBuf;
@@ -30,6 +31,10 @@ pub struct Cli {
 /// The jobs.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// The quick start: drape the T-shirt on one body with the simulator and with the
+    /// committed GarNet-Local weights; print both times, the speed-up, Edist and Enorm;
+    /// write OBJs and a side-by-side render.
+    Quickstart(quickstart::QuickstartArgs),
     /// Build a shaped, posed MakeHuman body: OBJ and PNG; import the body asset; check the
     /// pose prior.
     Body(body::BodyArgs),
@@ -88,5 +93,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(args) => learn::run(args),
         Command::Predict(args) => learn::predict(*args, &ctx),
         Command::Eval(args) => evaluate::run(args),
+        Command::Quickstart(args) => quickstart::run(args, &ctx),
     }
 }
