@@ -9,6 +9,7 @@
 //!   baselines measured on a dataset split (`drape eval`); [`report`] writes the report
 //!   folder; [`exr`] the float error images.
 //! - [`speed`]: the speed-up of a network over the simulator (`drape bench speedup`).
+//! - [`repro`]: the reproduction plan, its stage ledger and `docs/reproduction.md`.
 //! - [`plot`]: line charts (the average-precision curves) and colour bars as images.
 #![warn(missing_docs)]
 
@@ -18,4 +19,5 @@ pub mod metrics;
 pub mod plot;
 pub mod render;
 pub mod report;
+pub mod repro;
 pub mod speed;

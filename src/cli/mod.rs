@@ -8,6 +8,7 @@ mod garment;
 mod learn;
 mod pose_spec;
 mod quickstart;
+mod reproduce;
 mod simulate;
 
 use std::path::PathBuf;
@@ -63,6 +64,10 @@ pub enum Command {
     /// baselines on a dataset split: Edist, Enorm, curvature, physics, curves and renders
     /// in a report folder.
     Eval(evaluate::EvalArgs),
+    /// Reproduce the paper's tables on our data: generate the plan's datasets, train its
+    /// networks and fine-tunes, evaluate them, time the speed-up, write
+    /// docs/reproduction.md and .json. Resumable.
+    Reproduce(reproduce::ReproduceArgs),
 }
 
 /// Options every command shares.
@@ -94,5 +99,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Predict(args) => learn::predict(*args, &ctx),
         Command::Eval(args) => evaluate::run(args),
         Command::Quickstart(args) => quickstart::run(args, &ctx),
+        Command::Reproduce(args) => reproduce::run(args, &ctx),
     }
 }

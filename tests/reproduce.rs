@@ -1,0 +1,153 @@
+//! `drape reproduce` end to end on a tiny plan: it generates, trains a network and a
+//! fine-tune from it, evaluates both, times the speed-up and writes the report with our
+//! numbers beside the paper's; a second run resumes without redoing anything; a spent
+//! budget stops it with a clear message.
+
+mod common;
+
+use common::{drape, run};
+
+#[test]
+fn reproduce_runs_a_tiny_plan_resumes_and_keeps_to_its_budget() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let tiny = std::fs::read_to_string("configs/train/tiny.toml")
+        .unwrap()
+        .replace("epochs = 150", "epochs = 3");
+    std::fs::write(dir.join("local.toml"), &tiny).unwrap();
+    std::fs::write(
+        dir.join("rq.toml"),
+        format!("{tiny}\n[loss]\nvert = 1.0\nphysics_scale = 0.1\nrq = [500.0, 50.0, 10.0]\n"),
+    )
+    .unwrap();
+    let plan = |budget: f64| {
+        format!(
+            r#"name = "tiny"
+budget_hours = {budget}
+eval_planned_hours = 0.01
+
+[[datasets]]
+key = "tshirt"
+config = "tiny"
+planned_hours = 0.01
+
+[[runs]]
+key = "tshirt-local"
+config = "{0}/local.toml"
+data = "tshirt"
+planned_hours = 0.01
+
+[[runs]]
+key = "tshirt-local-rq"
+config = "{0}/rq.toml"
+data = "tshirt"
+init = "tshirt-local"
+planned_hours = 0.01
+
+[speedup]
+runs = ["tshirt-local"]
+samples = 1
+"#,
+            dir.display()
+        )
+    };
+    std::fs::write(dir.join("plan.toml"), plan(1.0)).unwrap();
+    let (out, docs) = (dir.join("out"), dir.join("docs"));
+    let reproduce = |plan: &str| {
+        run(drape()
+            .arg("reproduce")
+            .arg(dir.join(plan))
+            .arg("-o")
+            .arg(&out)
+            .arg("--docs")
+            .arg(&docs))
+    };
+    let (ok, text) = reproduce("plan.toml");
+    assert!(ok, "{text}");
+    for f in [
+        "data/tshirt/manifest.json",
+        "runs/tshirt-local/best.bpk",
+        "runs/tshirt-local-rq/run.json",
+        "eval/tshirt-local/metrics.json",
+        "eval/tshirt-local-rq/report.md",
+        "speedup/tshirt-local.json",
+        "stages.json",
+    ] {
+        assert!(out.join(f).exists(), "{f} missing: {text}");
+    }
+    let md = std::fs::read_to_string(docs.join("reproduction.md")).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(docs.join("reproduction.json")).unwrap()).unwrap();
+    // Table 1's T-shirt GarNet-Local cell carries our Edist and the paper's 0.56; the
+    // number in the JSON equals the evaluation's and names its provenance.
+    let metrics: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("eval/tshirt-local/metrics.json")).unwrap())
+            .unwrap();
+    let edist = metrics["summaries"]["network"]["edist_cm"][0]
+        .as_f64()
+        .unwrap();
+    assert!(
+        md.contains(&format!(
+            "| GarNet-Local | – / – (0.41 / 5.10) | {edist:.2} /"
+        )),
+        "{md}"
+    );
+    let cell = json["numbers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| {
+            n["table"] == 1
+                && n["row"] == "GarNet-Local"
+                && n["column"] == "T-shirt"
+                && n["metric"] == "Edist"
+        })
+        .unwrap();
+    assert!((cell["ours"].as_f64().unwrap() - edist).abs() < 1e-12);
+    assert_eq!(cell["paper"].as_f64().unwrap(), 0.56);
+    assert_eq!(
+        cell["manifest_sha256"],
+        metrics["provenance"]["manifest_sha256"]
+    );
+    assert!(cell["run_config_sha256"].as_str().unwrap().len() == 64);
+    // Table 2 has our simulator time; the budget table lists every stage as done.
+    assert!(
+        md.contains("| gen tshirt | 0.01 |") && md.contains("| train tshirt-local-rq |"),
+        "{md}"
+    );
+    let ledger: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("stages.json")).unwrap()).unwrap();
+    assert!(
+        ledger["done"]
+            .as_object()
+            .unwrap()
+            .values()
+            .all(|v| v == true),
+        "{ledger}"
+    );
+
+    // Again: every stage is done, nothing runs, the ledger's hours stay.
+    let (ok, text) = reproduce("plan.toml");
+    assert!(ok && !text.contains("== "), "{text}");
+    let again: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("stages.json")).unwrap()).unwrap();
+    assert_eq!(again["seconds"], ledger["seconds"]);
+
+    // A spent budget stops a plan before its next stage.
+    std::fs::write(
+        dir.join("tight.toml"),
+        plan(1e-6).replace("samples = 1", "samples = 2"),
+    )
+    .unwrap();
+    std::fs::remove_file(out.join("speedup/tshirt-local.json")).unwrap();
+    let (ok, text) = reproduce("tight.toml");
+    assert!(!ok && text.contains("budget"), "{text}");
+    // A plan whose fine-tune starts from an unknown run is refused.
+    std::fs::write(
+        dir.join("bad.toml"),
+        plan(1.0).replace("init = \"tshirt-local\"", "init = \"nothing\""),
+    )
+    .unwrap();
+    let (ok, text) = reproduce("bad.toml");
+    assert!(!ok && text.contains("nothing"), "{text}");
+}
