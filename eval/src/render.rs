@@ -338,16 +338,36 @@ pub fn grid(images: &[Image], columns: usize, background: [u8; 3]) -> Image {
     let cell_w = images.iter().map(|i| i.width).max().unwrap_or(1);
     let cell_h = images.iter().map(|i| i.height).max().unwrap_or(1);
     let rows = images.len().div_ceil(columns).max(1);
-    let (w, h) = (cell_w * columns as u32, cell_h * rows as u32);
+    let at = images.iter().enumerate().map(|(k, img)| {
+        (
+            (k % columns) as u32 * cell_w + (cell_w - img.width) / 2,
+            (k / columns) as u32 * cell_h + (cell_h - img.height) / 2,
+        )
+    });
+    compose(
+        images,
+        at,
+        cell_w * columns as u32,
+        cell_h * rows as u32,
+        background,
+    )
+}
+
+/// A `w` x `h` image of `background` with each image copied at its top-left corner.
+fn compose(
+    images: &[Image],
+    at: impl Iterator<Item = (u32, u32)>,
+    w: u32,
+    h: u32,
+    background: [u8; 3],
+) -> Image {
     let mut rgb: Vec<u8> = background
         .iter()
         .copied()
         .cycle()
         .take((w * h * 3) as usize)
         .collect();
-    for (k, img) in images.iter().enumerate() {
-        let ox = (k % columns) as u32 * cell_w + (cell_w - img.width) / 2;
-        let oy = (k / columns) as u32 * cell_h + (cell_h - img.height) / 2;
+    for (img, (ox, oy)) in images.iter().zip(at) {
         for y in 0..img.height {
             let src = (y * img.width * 3) as usize;
             let dst = (((oy + y) * w + ox) * 3) as usize;
@@ -464,26 +484,14 @@ pub fn error_colour(t: f32) -> [u8; 3] {
 pub fn stack(images: &[Image], background: [u8; 3]) -> Image {
     let w = images.iter().map(|i| i.width).max().unwrap_or(1);
     let h = images.iter().map(|i| i.height).sum::<u32>().max(1);
-    let mut rgb: Vec<u8> = background
-        .iter()
-        .copied()
-        .cycle()
-        .take((w * h * 3) as usize)
-        .collect();
     let mut oy = 0;
-    for img in images {
-        let ox = (w - img.width) / 2;
-        for y in 0..img.height {
-            let src = (y * img.width * 3) as usize;
-            let dst = (((oy + y) * w + ox) * 3) as usize;
-            rgb[dst..dst + (img.width * 3) as usize]
-                .copy_from_slice(&img.rgb[src..src + (img.width * 3) as usize]);
-        }
-        oy += img.height;
-    }
-    Image {
-        width: w,
-        height: h,
-        rgb,
-    }
+    let at: Vec<(u32, u32)> = images
+        .iter()
+        .map(|img| {
+            let p = ((w - img.width) / 2, oy);
+            oy += img.height;
+            p
+        })
+        .collect();
+    compose(images, at.into_iter(), w, h, background)
 }
