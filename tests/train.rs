@@ -289,6 +289,27 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         "{f:?}"
     );
     assert!(f[2] > 1000.0 && f[3] >= 0.0 && f[4] < 100.0, "{f:?}");
+    // On the training split a sample is not its own nearest neighbour.
+    let train_report = tmp.path().join("report-train");
+    let (ok, text) = run(drape()
+        .args(["eval", "--split", "train", "--limit", "2", "--model"])
+        .arg(&run_dir)
+        .arg("--data")
+        .arg(&data)
+        .arg("-o")
+        .arg(&train_report));
+    assert!(ok, "{text}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(train_report.join("metrics.json")).unwrap()).unwrap();
+    for s in m["samples"].as_array().unwrap() {
+        assert_ne!(s["neighbour"], s["id"], "{s}");
+        assert!(
+            s["methods"]["nearest-neighbour"]["edist_cm"]
+                .as_f64()
+                .unwrap()
+                > 0.1
+        );
+    }
     let (ok, text) = run(drape()
         .args(["eval", "--split", "holdout", "--model"])
         .arg(&run_dir)

@@ -242,11 +242,17 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     for s in split_samples(data, opts.split, opts.limit) {
         let s = s?;
         let key = Key::of(&s.row);
+        // On the training split a sample must not be its own neighbour.
         let best = keys
             .par_iter()
+            .filter(|k| k.id != key.id)
             .map(|k| (pose_shape_distance(&key, k), k.id))
             .min_by(|a, b| a.0.total_cmp(&b.0))
-            .expect("training keys");
+            .ok_or_else(|| {
+                EvalError::Invalid(
+                    "the nearest-neighbour baseline needs a second training sample".into(),
+                )
+            })?;
         neighbour_of.insert(s.row.id, best.1);
     }
     let wanted: HashSet<u64> = neighbour_of.values().copied().collect();
@@ -265,6 +271,24 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         }
     }
 
+    // The mean residual; on the training split without the sample's own displacement.
+    let n_train = keys.len() as f32;
+    let train_ids: HashSet<u64> = keys.iter().map(|k| k.id).collect();
+    let mean_residual = |row: &Row| -> Vec<Vec3> {
+        let own = train_ids.contains(&row.id) && n_train > 1.0;
+        row.warped
+            .iter()
+            .zip(&row.draped)
+            .zip(&mean_disp)
+            .map(|((m, g), d)| {
+                if own {
+                    *m + (*d * n_train - (*g - *m)) / (n_train - 1.0)
+                } else {
+                    *m + *d
+                }
+            })
+            .collect()
+    };
     let physics = Physics::new(
         &st.garment_vertices,
         &st.garment_triangles,
@@ -302,14 +326,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
                 let garments: [(&str, Vec<Vec3>); 4] = [
                     ("network", pred),
                     ("dqs", row.warped.clone()),
-                    (
-                        "mean-residual",
-                        row.warped
-                            .iter()
-                            .zip(&mean_disp)
-                            .map(|(m, d)| *m + *d)
-                            .collect(),
-                    ),
+                    ("mean-residual", mean_residual(row)),
                     (
                         "nearest-neighbour",
                         row.warped.iter().zip(nn).map(|(m, d)| *m + *d).collect(),

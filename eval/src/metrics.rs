@@ -26,25 +26,34 @@ pub fn edist_cm(pred: &[Vec3], gt: &[Vec3]) -> f64 {
     mean(vertex_errors(pred, gt).iter().map(|&e| e as f64)) * 100.0
 }
 
-/// Unit face normals (zero for a degenerate face).
+/// Unit face normals (zero for a degenerate face, NaN for a face with a non-finite
+/// vertex).
 pub fn face_normals(x: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
     triangles
         .iter()
         .map(|t| {
             let [a, b, c] = t.map(|i| x[i as usize]);
-            (b - a).cross(c - a).normalize_or_zero()
+            let n = (b - a).cross(c - a);
+            if n.is_finite() {
+                n.normalize_or_zero()
+            } else {
+                Vec3::NAN
+            }
         })
         .collect()
 }
 
 /// Angle between predicted and true normals per face (degrees). A face degenerate in
-/// either mesh counts as 90 degrees: its normal is undefined, which is an error.
+/// either mesh counts as 90 degrees: its normal is undefined, which is an error. A face
+/// with a non-finite vertex gives NaN, so a diverged prediction shows in Enorm too.
 pub fn face_angles(pred: &[Vec3], gt: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
     let (np, ng) = (face_normals(pred, triangles), face_normals(gt, triangles));
     np.iter()
         .zip(&ng)
         .map(|(p, g)| {
-            if *p == Vec3::ZERO || *g == Vec3::ZERO {
+            if p.is_nan() || g.is_nan() {
+                f32::NAN
+            } else if *p == Vec3::ZERO || *g == Vec3::ZERO {
                 90.0
             } else {
                 p.dot(*g).clamp(-1.0, 1.0).acos().to_degrees()

@@ -134,12 +134,14 @@ pub fn ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     (first..=last).map(|k| k as f64 * step).collect()
 }
 
+/// `v` with as many decimals as `step` needs (0.25 -> 2, 2.5 -> 1, 5 -> 0).
 fn tick_label(v: f64, step: f64) -> String {
-    let decimals = if step >= 1.0 {
-        0
-    } else {
-        (-step.log10()).ceil() as usize
-    };
+    let decimals = (0..6)
+        .find(|&d| {
+            let s = step * 10f64.powi(d);
+            (s - s.round()).abs() < 1e-6 * s.abs().max(1.0)
+        })
+        .unwrap_or(6) as usize;
     format!("{v:.decimals$}")
 }
 
@@ -273,6 +275,14 @@ pub fn colour_bar(max: f64, label: &str, width: u32) -> Image {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tick_labels_keep_the_step_s_decimals() {
+        assert_eq!(tick_label(0.75, 0.25), "0.75");
+        assert_eq!(tick_label(7.5, 2.5), "7.5");
+        assert_eq!(tick_label(40.0, 5.0), "40");
+        assert_eq!(tick_label(0.6000000000000001, 0.2), "0.6");
+    }
 
     #[test]
     fn ticks_are_round_and_cover_the_range() {

@@ -280,36 +280,53 @@ pub fn write_report(
     }
     write(&out.join("samples.csv"), csv.as_bytes())?;
 
-    // Best, median and worst samples of the network.
-    let mut order: Vec<usize> = (0..ev.samples.len()).collect();
+    // Best, median and worst samples of the network, among finite predictions; a render
+    // that fails is noted in the report instead of losing it.
+    let mut order: Vec<usize> = (0..ev.samples.len())
+        .filter(|&k| ev.samples[k].methods["network"].edist_cm.is_finite())
+        .collect();
+    let non_finite = ev.samples.len() - order.len();
     order.sort_by(|&a, &b| {
         ev.samples[a].methods["network"]
             .edist_cm
             .total_cmp(&ev.samples[b].methods["network"].edist_cm)
     });
-    let picks = [
-        ("best", order[0]),
-        ("median", order[order.len() / 2]),
-        ("worst", order[order.len() - 1]),
-    ];
+    let picks: Vec<(&str, usize)> = if order.is_empty() {
+        Vec::new()
+    } else {
+        vec![
+            ("best", order[0]),
+            ("median", order[order.len() / 2]),
+            ("worst", order[order.len() - 1]),
+        ]
+    };
     let ids: Vec<u64> = picks.iter().map(|p| ev.samples[p.1].id).collect();
     let rows = rows_of(data, split, &ids)?;
-    let net = Predictor::open(run, &data.statics)?;
-    let (preds, _) = net.predict_rows(&rows);
-    let st = &data.statics;
-    for ((name, _), (row, pred)) in picks.iter().zip(rows.iter().zip(&preds)) {
-        let (img, values) = sample_render(
-            &row.body,
-            &st.body_triangles,
-            &st.garment_triangles,
-            &row.draped,
-            pred,
-        )?;
-        write(&out.join(format!("{name}.png")), &encode_png(&img)?)?;
-        write(
-            &out.join(format!("{name}-error.exr")),
-            &crate::exr::encode_gray(values.width, values.height, &values.data),
-        )?;
+    let mut render_notes: BTreeMap<&str, String> = BTreeMap::new();
+    if !rows.is_empty() {
+        let net = Predictor::open(run, &data.statics)?;
+        let (preds, _) = net.predict_rows(&rows);
+        let st = &data.statics;
+        for ((name, _), (row, pred)) in picks.iter().zip(rows.iter().zip(&preds)) {
+            match sample_render(
+                &row.body,
+                &st.body_triangles,
+                &st.garment_triangles,
+                &row.draped,
+                pred,
+            ) {
+                Ok((img, values)) => {
+                    write(&out.join(format!("{name}.png")), &encode_png(&img)?)?;
+                    write(
+                        &out.join(format!("{name}-error.exr")),
+                        &crate::exr::encode_gray(values.width, values.height, &values.data),
+                    )?;
+                }
+                Err(e) => {
+                    render_notes.insert(name, format!("render failed: {e}"));
+                }
+            }
+        }
     }
 
     // metrics.json.
@@ -318,12 +335,14 @@ pub fn write_report(
         provenance: &'a Provenance,
         network: &'a str,
         samples_evaluated: usize,
+        vertices: usize,
         training_samples: usize,
         summaries: &'a BTreeMap<String, Summary>,
         curves: BTreeMap<&'a str, BTreeMap<String, Vec<(f64, f64)>>>,
         network_seconds_per_drape: f64,
         batch: usize,
         renders: BTreeMap<&'a str, u64>,
+        non_finite_predictions: usize,
         samples: &'a [crate::evaluate::SampleEval],
     }
     let curve_points = |c: &BTreeMap<String, crate::metrics::Curve>| {
@@ -340,6 +359,7 @@ pub fn write_report(
         provenance: &provenance,
         network: &ev.network,
         samples_evaluated: ev.samples.len(),
+        vertices: data.statics.garment_vertices.len(),
         training_samples: ev.train_samples,
         summaries: &sums,
         curves: BTreeMap::from([
@@ -353,6 +373,7 @@ pub fn write_report(
             .zip(&ids)
             .map(|((n, _), id)| (*n, *id))
             .collect(),
+        non_finite_predictions: non_finite,
         samples: &ev.samples,
     };
     write(
@@ -475,11 +496,18 @@ pub fn write_report(
     }
     writeln!(md, "\n## Samples\n").unwrap();
     writeln!(md, "Left pair: the simulator's drape (front, side). Right pair: the network's, coloured by its distance to the simulator's (0 to {ERROR_SCALE_CM} cm; the same values as 32-bit floats in `*-error.exr`, NaN off the garment).\n").unwrap();
+    if non_finite > 0 {
+        writeln!(md, "**{non_finite} samples have non-finite predictions** (left out of the renders; their figures are NaN above).\n").unwrap();
+    }
     for ((name, k), id) in picks.iter().zip(&ids) {
         let s = &ev.samples[*k];
+        let picture = render_notes
+            .get(name)
+            .cloned()
+            .unwrap_or_else(|| format!("![{name}]({name}.png)"));
         writeln!(
             md,
-            "**{name}**: sample {id} ({}), Edist {:.2} cm (DQS {:.2} cm), Enorm {:.1}°\n\n![{name}]({name}.png)\n",
+            "**{name}**: sample {id} ({}), Edist {:.2} cm (DQS {:.2} cm), Enorm {:.1}°\n\n{picture}\n",
             s.family, s.methods["network"].edist_cm, s.methods["dqs"].edist_cm, s.methods["network"].enorm_deg
         )
         .unwrap();

@@ -258,7 +258,7 @@ fn bench_speedup(
         dc.garment,
         template.mesh.vertices.len(),
         run.display(),
-        samples,
+        samples.max(1).min(data.count(dataset::config::Split::Test)),
         dc.name,
         dc.sim.substeps,
         dc.sim.fps

@@ -63,7 +63,12 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     let (_, info) = learn::run::open_run(&run_dir).map_err(|e| {
         anyhow::anyhow!("{e}\n(the quick start needs the network weights in {}; they are part of the repository)", run_dir.display())
     })?;
-    let dc = DatasetConfig::load(&info.dataset)?;
+    let dc = DatasetConfig::load(&info.dataset).map_err(|e| {
+        anyhow::anyhow!(
+            "{e}\n(the quick start draws bodies with the dataset config the network was trained on, {:?}, which must be a built-in config)",
+            info.dataset
+        )
+    })?;
     if let Some(out) = &args.reference {
         return reference(ctx, &run_dir, &dc, out);
     }
@@ -217,6 +222,9 @@ fn reference(ctx: &Context, run_dir: &Path, dc: &DatasetConfig, out: &Path) -> a
         super::learn::statics(&template, &model, &canonical.vertices, model.skeleton.len());
     let net = Predictor::open(run_dir, &statics)?;
     let rows: Vec<dataset::shard::Row> = drapes.into_iter().filter_map(|(r, _)| r).collect();
+    if rows.is_empty() {
+        anyhow::bail!("none of the 10 test drapes converged: no reference to record");
+    }
     let (preds, _) = net.predict_rows(&rows);
     let samples: Vec<(u64, f64, f64)> = rows
         .iter()

@@ -66,6 +66,15 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     std::fs::create_dir_all(&out)?;
     let ledger_path = out.join("stages.json");
     let mut ledger = Ledger::load(&ledger_path)?;
+    // A stage that a killed session left running: its time so far, kept by a heartbeat.
+    let running_path = out.join("stages.running.json");
+    if let Ok(b) = std::fs::read(&running_path) {
+        if let Ok((name, seconds)) = serde_json::from_slice::<(String, f64)>(&b) {
+            *ledger.seconds.entry(name).or_default() += seconds;
+            ledger.save(&ledger_path)?;
+        }
+        std::fs::remove_file(&running_path)?;
+    }
     let data_dir = |key: &str| out.join("data").join(key);
     let run_dir = |key: &str| out.join("runs").join(key);
     let eval_dir = |key: &str| out.join("eval").join(key);
@@ -93,7 +102,28 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
             plan.budget_hours
         );
         let t0 = Instant::now();
-        let r = work();
+        // Heartbeat: the elapsed time goes to stages.running.json every 30 s, so a session
+        // that ends abruptly still counts its hours on the next run.
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        let r = std::thread::scope(|s| {
+            s.spawn(|| {
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    let beat =
+                        serde_json::to_vec(&(name, t0.elapsed().as_secs_f64())).expect("json");
+                    let _ = dataset::generate::write_atomic(&running_path, &beat);
+                    for _ in 0..30 {
+                        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                            break;
+                        }
+                        std::thread::sleep(std::time::Duration::from_secs(1));
+                    }
+                }
+            });
+            let r = work();
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            r
+        });
+        let _ = std::fs::remove_file(&running_path);
         *ledger.seconds.entry(name.to_string()).or_default() += t0.elapsed().as_secs_f64();
         ledger.done.insert(name.to_string(), r.is_ok() && done());
         ledger.save(&ledger_path)?;
