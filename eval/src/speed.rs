@@ -56,6 +56,10 @@ pub struct SampleSpeed {
     pub pbs_dagger_frames: u32,
     /// Whether both drapes converged.
     pub converged: bool,
+    /// Why the full drape failed, if it did.
+    pub pbs_failure: Option<String>,
+    /// Why PBS-dagger failed, if it did (e.g. a warped garment starting inside the body).
+    pub pbs_dagger_failure: Option<String>,
     /// Edist between this run's full drape and the dataset's (cm; 0 when the simulator is
     /// deterministic across thread counts, as it is designed to be).
     pub pbs_vs_dataset_cm: f64,
@@ -90,19 +94,35 @@ pub struct SpeedReport {
     pub parameters: usize,
 }
 
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    if n == 0 { f64::NAN } else { s / n as f64 }
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }
 
 impl SpeedReport {
-    /// Mean full-drape time (s).
+    /// Mean full-drape time over the converged full drapes (s; NaN if none converged).
     pub fn pbs(&self) -> f64 {
-        self.samples.iter().map(|s| s.pbs).sum::<f64>() / self.samples.len() as f64
+        mean(
+            self.samples
+                .iter()
+                .filter(|s| s.pbs_failure.is_none())
+                .map(|s| s.pbs),
+        )
     }
-    /// Mean PBS-dagger time (s).
+    /// Mean PBS-dagger time over the converged PBS-dagger drapes (s; NaN if none): a
+    /// drape that fails in its first frame would make the simulator look fast.
     pub fn pbs_dagger(&self) -> f64 {
-        self.samples.iter().map(|s| s.pbs_dagger).sum::<f64>() / self.samples.len() as f64
+        mean(
+            self.samples
+                .iter()
+                .filter(|s| s.pbs_dagger_failure.is_none())
+                .map(|s| s.pbs_dagger),
+        )
     }
     /// Mean network time per drape at batch 1 (warp, inputs, network) (s).
     pub fn network_batch1(&self) -> f64 {
@@ -227,6 +247,8 @@ pub fn measure(
             pbs_dagger: dagger.report.wall_time,
             pbs_dagger_frames: dagger.report.morph_frames + dagger.report.settle_frames,
             converged: full.report.converged && dagger.report.converged,
+            pbs_failure: full.report.failure.as_ref().map(|f| f.to_string()),
+            pbs_dagger_failure: dagger.report.failure.as_ref().map(|f| f.to_string()),
             pbs_vs_dataset_cm: edist_cm(&full.positions, &row.draped),
             dagger_vs_dataset_cm: edist_cm(&dagger.positions, &row.draped),
             warp,

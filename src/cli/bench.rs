@@ -299,10 +299,10 @@ fn bench_speedup(
                 s.inputs * 1e3,
                 s.network * 1e3,
                 s.pbs / net,
-                if s.converged {
-                    ""
-                } else {
-                    "  (a drape did not converge)"
+                match (&s.pbs_failure, &s.pbs_dagger_failure) {
+                    (None, None) => String::new(),
+                    (Some(f), _) => format!("  (full drape failed: {f})"),
+                    (None, Some(f)) => format!("  (PBS-dagger failed: {f}; left out of its mean)"),
                 }
             );
         },
@@ -317,8 +317,20 @@ fn bench_speedup(
         "\nper drape, mean over samples ({} vertices, {} threads):",
         r.vertices, r.threads
     );
-    println!("  simulator, full drape (PBS)        {:>9.3} s", pbs);
-    println!("  simulator, from the warp (PBS-dag) {:>9.3} s", dagger);
+    let converged =
+        |f: &dyn Fn(&eval::speed::SampleSpeed) -> bool| r.samples.iter().filter(|s| f(s)).count();
+    println!(
+        "  simulator, full drape (PBS)        {:>9.3} s   ({} of {} drapes converged; the mean is theirs)",
+        pbs,
+        converged(&|s| s.pbs_failure.is_none()),
+        r.samples.len()
+    );
+    println!(
+        "  simulator, from the warp (PBS-dag) {:>9.3} s   ({} of {} drapes converged; the mean is theirs)",
+        dagger,
+        converged(&|s| s.pbs_dagger_failure.is_none()),
+        r.samples.len()
+    );
     println!(
         "  {} batch 1                {:>9.1} ms   speed-up {:>6.1}x over PBS, {:>5.1}x over PBS-dagger",
         r.network,
