@@ -169,7 +169,8 @@ impl Ledger {
 
     /// Total measured hours.
     pub fn hours(&self) -> f64 {
-        self.seconds.values().sum::<f64>() / 3600.0
+        // Plus zero: an empty float sum is -0.0, which would print as "-0.00".
+        self.seconds.values().sum::<f64>() / 3600.0 + 0.0
     }
 }
 
@@ -848,4 +849,31 @@ pub fn write_report(
     dataset::generate::write_atomic(&md_path, md.as_bytes())?;
     dataset::generate::write_atomic(&json_path, &serde_json::to_vec_pretty(&json).expect("json"))?;
     Ok(vec![md_path, json_path])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_paper_tables_parse_and_map_to_our_runs() {
+        let t = paper_tables();
+        let numbers: Vec<u32> = t.iter().map(|t| t.number).collect();
+        assert_eq!(numbers, (1..=10).collect::<Vec<_>>());
+        let t1 = &t[0];
+        let cell = t1
+            .cells
+            .iter()
+            .find(|c| c.row == "GarNet-Local" && c.column == "T-shirt" && c.metric == "Edist")
+            .unwrap();
+        assert_eq!(cell.value, 0.56);
+        // Every row and column of Tables 1, 3, 7 and 8 names a run of ours.
+        for t in t.iter().filter(|t| [1, 3, 7, 8].contains(&t.number)) {
+            for c in &t.cells {
+                assert!(garment_key(&c.column).is_some(), "{}", c.column);
+                assert!(variant_key(&c.row).is_some(), "{}", c.row);
+            }
+        }
+        assert_eq!(Ledger::default().hours().to_string(), "0");
+    }
 }
