@@ -22,17 +22,10 @@ fn dqs_edist(data: &Path, n: usize) -> f64 {
     }
     rows.sort_by_key(|r| r.id);
     rows.truncate(n);
-    let mut sum = 0.0;
-    for r in &rows {
-        let e: f64 = r
-            .warped
-            .iter()
-            .zip(&r.draped)
-            .map(|(m, g)| m.distance(*g) as f64)
-            .sum();
-        sum += e / r.warped.len() as f64;
-    }
-    sum / rows.len() as f64 * 100.0
+    eval::metrics::mean(
+        rows.iter()
+            .map(|r| eval::metrics::edist_cm(&r.warped, &r.draped)),
+    )
 }
 
 #[test]

@@ -116,12 +116,29 @@ struct Job<'a> {
     config: &'a DatasetConfig,
     model: &'a BodyModel,
     template: &'a Template,
-    cloth: &'a ClothModel,
-    poser: &'a Poser,
+    cloth: ClothModel,
+    poser: Poser,
     canonical: sim::body::ShapedBody<'a>,
 }
 
-impl Job<'_> {
+impl<'a> Job<'a> {
+    /// The garment cooked for the config's simulator, the poser and the canonical body.
+    fn new(
+        config: &'a DatasetConfig,
+        model: &'a BodyModel,
+        template: &'a Template,
+        library: PoseLibrary,
+    ) -> Result<Self, DatasetError> {
+        Ok(Self {
+            config,
+            model,
+            template,
+            cloth: ClothModel::new(&template.mesh, &config.sim, &[])?,
+            poser: Poser::new(config, model, library)?,
+            canonical: model.shape(&ShapeParams::default())?,
+        })
+    }
+
     /// Drapes sample `id`: a row (None if the drape failed) and its record.
     fn run(&self, id: u64) -> Result<(Option<Row>, SampleRecord), DatasetError> {
         let t0 = Instant::now();
@@ -141,7 +158,7 @@ impl Job<'_> {
         )?;
         // One thread per drape: threads go across drapes, and the bits do not depend on it.
         let d = drape::drape(
-            self.cloth,
+            &self.cloth,
             &self.template.mesh.vertices,
             &motion,
             &c.sim,
@@ -153,7 +170,7 @@ impl Job<'_> {
             plan,
             family: drawn.family.clone(),
             pose_source: drawn.pose_source.clone(),
-            shape: drawn.shape.named().map(|(_, v)| v),
+            shape: drawn.shape.values(),
             ok,
             failure: d.report.failure.map(|f| f.to_string()),
             report: serde_json::to_value(&d.report).expect("reports serialise"),
@@ -247,14 +264,7 @@ pub fn redrape(
         )));
     }
     let (model, library, template) = load_inputs(config, assets, &mut |_| {})?;
-    let job = Job {
-        config,
-        model: &model,
-        template: &template,
-        cloth: &ClothModel::new(&template.mesh, &config.sim, &[])?,
-        poser: &Poser::new(config, &model, library)?,
-        canonical: model.shape(&ShapeParams::default())?,
-    };
+    let job = Job::new(config, &model, &template, library)?;
     ids.par_iter().map(|&id| job.run(id)).collect()
 }
 
@@ -337,22 +347,13 @@ pub fn generate(
     }
 
     let (model, library, template) = load_inputs(config, assets, log)?;
-    let canonical = model.shape(&ShapeParams::default())?;
-    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])?;
-    let poser = Poser::new(config, &model, library)?;
+    let job = Job::new(config, &model, &template, library)?;
     let dims: Dims = (
-        canonical.vertices.len(),
+        job.canonical.vertices.len(),
         template.mesh.vertices.len(),
         model.skeleton.len(),
     );
-
-    let st = Static {
-        garment_vertices: template.mesh.vertices.clone(),
-        garment_triangles: template.mesh.triangles.clone(),
-        body_triangles: model.triangles.clone(),
-        canonical_body: canonical.vertices.clone(),
-        bones: dims.2,
-    };
+    let st = Static::new(&template.mesh, &model, &job.canonical.vertices);
     let static_bytes = st.encode();
     let static_path = dir.join(STATIC_FILE);
     if std::fs::read(&static_path).ok().as_deref() != Some(&static_bytes[..]) {
@@ -391,14 +392,6 @@ pub fn generate(
         done: resumed,
     });
 
-    let job = Job {
-        config,
-        model: &model,
-        template: &template,
-        cloth: &cloth,
-        poser: &poser,
-        canonical,
-    };
     // Shards still missing samples, with the count missing.
     let shard_of: BTreeMap<u64, usize> = mine
         .iter()

@@ -341,6 +341,23 @@ struct StaticMeta {
 }
 
 impl Static {
+    /// What a dataset of `garment` (its template mesh) on `model` stores once: the
+    /// template, its faces, the body's faces, the canonical body (`canonical`, the model
+    /// at the default shape in its rest pose) and the skeleton's bone count.
+    pub fn new(
+        garment: &sim::mesh::TriMesh,
+        model: &sim::body::BodyModel,
+        canonical: &[Vec3],
+    ) -> Self {
+        Self {
+            garment_vertices: garment.vertices.clone(),
+            garment_triangles: garment.triangles.clone(),
+            body_triangles: model.triangles.clone(),
+            canonical_body: canonical.to_vec(),
+            bones: model.skeleton.len(),
+        }
+    }
+
     /// Safetensors bytes.
     pub fn encode(&self) -> Vec<u8> {
         let u32s = |t: &[[u32; 3]]| -> Vec<u8> {

@@ -334,14 +334,11 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
                 ];
                 let floor = row.body.iter().map(|p| p.y).fold(f32::MAX, f32::min);
                 let collider = sim::cloth::BodyCollider::new(&row.body, &st.body_triangles, 0.0);
-                let inside = |x: &[Vec3]| {
-                    x.iter().filter(|p| collider.inside(**p)).count() as f64 / x.len() as f64
-                };
                 let with_energies = |f: Figures, e: Energies, x: &[Vec3]| Figures {
                     strain_j: e.strain,
                     bending_j: e.bending,
                     gravity_j: e.gravity,
-                    interpenetration: inside(x),
+                    interpenetration: metrics::interpenetration(&collider, x),
                     ..f
                 };
                 let mut methods = BTreeMap::new();
@@ -351,9 +348,8 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
                     let ang = metrics::face_angles(x, &row.draped, &st.garment_triangles);
                     let c = curvature.of(x, &row.draped);
                     let f = Figures {
-                        edist_cm: dist.iter().map(|&e| e as f64).sum::<f64>() / dist.len() as f64
-                            * 100.0,
-                        enorm_deg: ang.iter().map(|&e| e as f64).sum::<f64>() / ang.len() as f64,
+                        edist_cm: metrics::mean(dist.iter().map(|&e| e as f64)) * 100.0,
+                        enorm_deg: metrics::mean(ang.iter().map(|&e| e as f64)),
                         l_mc: c[0],
                         l_rq: [c[1], c[2], c[3]],
                         ..Figures::default()

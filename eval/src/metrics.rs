@@ -67,9 +67,21 @@ pub fn enorm_deg(pred: &[Vec3], gt: &[Vec3], triangles: &[[u32; 3]]) -> f64 {
     mean(face_angles(pred, gt, triangles).iter().map(|&e| e as f64))
 }
 
-fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
-    if n == 0 { 0.0 } else { s / n as f64 }
+/// Mean of the values (NaN for none).
+pub fn mean(v: impl IntoIterator<Item = f64>) -> f64 {
+    let (s, n) = v
+        .into_iter()
+        .fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    if n == 0 { f64::NAN } else { s / n as f64 }
+}
+
+/// Median of the values (the upper one of an even count; NaN for none).
+pub fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
 
 /// Mean and (population) standard deviation.
@@ -343,13 +355,13 @@ impl Physics {
 }
 
 /// Share of the garment's vertices inside the body (0 to 1), by ray parity, at any depth:
-/// the interpenetration ratio DrapeNet reports.
-pub fn interpenetration(body: &[Vec3], body_triangles: &[[u32; 3]], x: &[Vec3]) -> f64 {
+/// the interpenetration ratio DrapeNet reports. `body` is the posed body's collider
+/// (`BodyCollider::new(vertices, triangles, 0.0)`), built once for all garments on it.
+pub fn interpenetration(body: &BodyCollider, x: &[Vec3]) -> f64 {
     if x.is_empty() {
         return 0.0;
     }
-    let collider = BodyCollider::new(body, body_triangles, 0.0);
-    let inside = x.iter().filter(|p| collider.inside(**p)).count();
+    let inside = x.iter().filter(|p| body.inside(**p)).count();
     inside as f64 / x.len() as f64
 }
 
@@ -448,7 +460,8 @@ mod tests {
             Vec3::new(0.3, 0.0, 0.0),
             Vec3::new(0.0, 0.5, 0.0),
         ];
-        let r = interpenetration(&body.vertices, &body.triangles, &x);
+        let collider = BodyCollider::new(&body.vertices, &body.triangles, 0.0);
+        let r = interpenetration(&collider, &x);
         assert!((r - 0.5).abs() < 1e-12, "{r}");
     }
 }

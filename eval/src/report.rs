@@ -100,13 +100,6 @@ pub struct Provenance {
     pub program_version: String,
 }
 
-fn write(path: &Path, bytes: &[u8]) -> Result<(), EvalError> {
-    std::fs::write(path, bytes).map_err(|e| EvalError::Io {
-        path: path.to_path_buf(),
-        source: e,
-    })
-}
-
 fn sha256_file(path: &Path) -> Result<String, EvalError> {
     let bytes = std::fs::read(path).map_err(|e| EvalError::Io {
         path: path.to_path_buf(),
@@ -178,13 +171,15 @@ pub fn write_report(
         source: e,
     })?;
     let sums = summaries(ev);
+    // Every file of the report, written together at the end (all or none).
+    let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     let title = |m: &str| method_title(m, &ev.network);
     let provenance = Provenance {
         run: run.to_path_buf(),
         run_config_sha256: sha256_file(&run.join("config.toml"))?,
         data: data.dir.clone(),
         dataset: data.manifest.name.clone(),
-        manifest_sha256: sha256_file(&data.dir.join("manifest.json"))?,
+        manifest_sha256: learn::run::manifest_sha256(&data.dir)?,
         split: split.name().into(),
         git_revision: dataset::manifest::GIT_REVISION.into(),
         program_version: env!("CARGO_PKG_VERSION").into(),
@@ -220,7 +215,7 @@ pub fn write_report(
             }
             csv.push('\n');
         }
-        write(&out.join(format!("{file}.csv")), csv.as_bytes())?;
+        files.push((out.join(format!("{file}.csv")), csv.into_bytes()));
         let chart = Chart {
             title: name.into(),
             x_label: x_label.into(),
@@ -243,10 +238,10 @@ pub fn write_report(
                 })
                 .collect(),
         };
-        write(
-            &out.join(format!("{file}.png")),
-            &encode_png(&line_chart(&chart, 760, 480))?,
-        )?;
+        files.push((
+            out.join(format!("{file}.png")),
+            encode_png(&line_chart(&chart, 760, 480))?,
+        ));
     }
 
     // Per-sample CSV.
@@ -278,7 +273,7 @@ pub fn write_report(
             .unwrap();
         }
     }
-    write(&out.join("samples.csv"), csv.as_bytes())?;
+    files.push((out.join("samples.csv"), csv.into_bytes()));
 
     // Best, median and worst samples of the network, among finite predictions; a render
     // that fails is noted in the report instead of losing it.
@@ -316,11 +311,11 @@ pub fn write_report(
                 pred,
             ) {
                 Ok((img, values)) => {
-                    write(&out.join(format!("{name}.png")), &encode_png(&img)?)?;
-                    write(
-                        &out.join(format!("{name}-error.exr")),
-                        &crate::exr::encode_gray(values.width, values.height, &values.data),
-                    )?;
+                    files.push((out.join(format!("{name}.png")), encode_png(&img)?));
+                    files.push((
+                        out.join(format!("{name}-error.exr")),
+                        crate::exr::encode_gray(values.width, values.height, &values.data),
+                    ));
                 }
                 Err(e) => {
                     render_notes.insert(name, format!("render failed: {e}"));
@@ -376,10 +371,10 @@ pub fn write_report(
         non_finite_predictions: non_finite,
         samples: &ev.samples,
     };
-    write(
-        &out.join("metrics.json"),
-        &serde_json::to_vec_pretty(&json).expect("metrics serialise"),
-    )?;
+    files.push((
+        out.join("metrics.json"),
+        serde_json::to_vec_pretty(&json).expect("metrics serialise"),
+    ));
 
     // report.md.
     let mut md = String::new();
@@ -520,6 +515,14 @@ pub fn write_report(
         ev.seconds
     )
     .unwrap();
-    write(&out.join("report.md"), md.as_bytes())?;
+    files.push((out.join("report.md"), md.into_bytes()));
+    let refs: Vec<(&Path, &[u8])> = files
+        .iter()
+        .map(|(p, b)| (p.as_path(), b.as_slice()))
+        .collect();
+    sim::io::write_all_or_nothing(&refs).map_err(|e| EvalError::Io {
+        path: e.path,
+        source: e.source,
+    })?;
     Ok(sums)
 }

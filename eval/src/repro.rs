@@ -274,7 +274,7 @@ pub struct Results {
     /// Evaluations by run key.
     pub evals: BTreeMap<String, serde_json::Value>,
     /// Speed-up measurements by run key.
-    pub speed: BTreeMap<String, serde_json::Value>,
+    pub speed: BTreeMap<String, crate::speed::SpeedReport>,
 }
 
 impl Results {
@@ -290,7 +290,9 @@ impl Results {
             if let Some(v) = read(out.join("eval").join(&run.key).join("metrics.json")) {
                 r.evals.insert(run.key.clone(), v);
             }
-            if let Some(v) = read(out.join("speedup").join(format!("{}.json", run.key))) {
+            if let Some(v) = read(out.join("speedup").join(format!("{}.json", run.key)))
+                .and_then(|v| serde_json::from_value(v).ok())
+            {
                 r.speed.insert(run.key.clone(), v);
             }
         }
@@ -408,16 +410,13 @@ fn ours_for(t: &PaperTable, c: &PaperCell, r: &Results) -> (Option<f64>, String)
             let Some(s) = r.speed.get(key) else {
                 return (None, key.into());
             };
-            let x = if field == "net" {
-                s["batched_per_drape"].as_f64()
-            } else {
-                let v: Vec<f64> = s["samples"]
-                    .as_array()
-                    .map(|a| a.iter().filter_map(|x| x[field].as_f64()).collect())
-                    .unwrap_or_default();
-                (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+            // Simulator means over converged drapes only (`SpeedReport::pbs`).
+            let x = match field {
+                "net" => s.batched_per_drape,
+                "pbs" => s.pbs(),
+                _ => s.pbs_dagger(),
             };
-            (x.map(|s| s * 1e3), key.into())
+            (Some(x * 1e3).filter(|x| x.is_finite()), key.into())
         }
         _ => (None, String::new()),
     }
@@ -425,7 +424,7 @@ fn ours_for(t: &PaperTable, c: &PaperCell, r: &Results) -> (Option<f64>, String)
 
 /// The paper's value shown beside ours (Table 7 and the curvature columns of Table 9 as
 /// ratios to GarNet-Local, as ours are).
-fn paper_for(t: &PaperTable, c: &PaperCell) -> f64 {
+fn paper_for(tables: &[PaperTable], t: &PaperTable, c: &PaperCell) -> f64 {
     let ratio_base = |row: &str, column: &str| {
         t.cells
             .iter()
@@ -436,17 +435,14 @@ fn paper_for(t: &PaperTable, c: &PaperCell) -> f64 {
         7 => ratio_base("GarNet-Local", &c.column).map_or(f64::NAN, |b| c.value / b),
         9 if c.metric.starts_with("L_") => {
             // The paper's Table 7 T-shirt GarNet-Local values are the base.
-            let base = paper_tables()
-                .into_iter()
-                .find(|x| x.number == 7)
-                .and_then(|t7| {
-                    t7.cells
-                        .iter()
-                        .find(|b| {
-                            b.row == "GarNet-Local" && b.column == "T-shirt" && b.metric == c.metric
-                        })
-                        .map(|b| b.value)
-                });
+            let base = tables.iter().find(|x| x.number == 7).and_then(|t7| {
+                t7.cells
+                    .iter()
+                    .find(|b| {
+                        b.row == "GarNet-Local" && b.column == "T-shirt" && b.metric == c.metric
+                    })
+                    .map(|b| b.value)
+            });
             base.map_or(f64::NAN, |b| c.value / b)
         }
         _ => c.value,
@@ -607,9 +603,9 @@ pub fn write_report(
         let speed = r.speed.get("tshirt-local");
         let table2 = format!(
             "Ours: ms per drape on this CPU ({} threads) at batch {}, including the DQS warp and the k-NN searches, on {} vertices; PBS and PBS-dagger: our simulator, mean over the timed test samples. The paper's: a TITAN X GPU and NvCloth, batch 16, 10k vertices.",
-            speed.map_or("–".into(), |s| s["threads"].to_string()),
-            speed.map_or("–".into(), |s| s["batch"].to_string()),
-            speed.map_or("–".into(), |s| s["vertices"].to_string()),
+            speed.map_or("–".into(), |s| s.threads.to_string()),
+            speed.map_or("–".into(), |s| s.batch.to_string()),
+            speed.map_or("–".into(), |s| s.vertices.to_string()),
         );
         let note = match t.number {
             2 => table2.as_str(),
@@ -649,7 +645,7 @@ pub fn write_report(
                 let mut paper_s = Vec::new();
                 for c in cells {
                     let (ours, key) = ours_for(t, c, &r);
-                    let paper = paper_for(t, c);
+                    let paper = paper_for(&tables, t, c);
                     let digits = if t.number == 2 { 1 } else { 2 };
                     ours_s.push(fmt(ours, digits));
                     paper_s.push(format!(

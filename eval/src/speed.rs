@@ -17,8 +17,10 @@ use std::time::Instant;
 use dataset::config::Split;
 use dataset::reader::Dataset;
 use dataset::shard::Row;
+use glam::Vec3;
+use learn::config::{ModelConfig, Variant};
 use learn::predict::Predictor;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sim::body::pose::Pose;
 use sim::body::{BodyModel, PosedBody, ShapeParams, ShapedBody};
 use sim::cloth::ClothModel;
@@ -26,7 +28,7 @@ use sim::cloth::drape::{self, BodyMorph, StaticBody};
 use sim::garment::Template;
 
 use crate::evaluate::EvalError;
-use crate::metrics::edist_cm;
+use crate::metrics::{edist_cm, mean, median};
 
 /// Options of the measurement.
 #[derive(Debug, Clone)]
@@ -42,7 +44,7 @@ pub struct SpeedOptions {
 }
 
 /// Times of one sample (s).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SampleSpeed {
     /// Sample id.
     pub id: u64,
@@ -54,8 +56,6 @@ pub struct SampleSpeed {
     pub pbs_dagger: f64,
     /// Frames of that drape.
     pub pbs_dagger_frames: u32,
-    /// Whether both drapes converged.
-    pub converged: bool,
     /// Why the full drape failed, if it did.
     pub pbs_failure: Option<String>,
     /// Why PBS-dagger failed, if it did (e.g. a warped garment starting inside the body).
@@ -74,7 +74,7 @@ pub struct SampleSpeed {
 }
 
 /// The whole measurement.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SpeedReport {
     /// Network variant.
     pub network: String,
@@ -90,18 +90,10 @@ pub struct SpeedReport {
     pub batched_per_drape: f64,
     /// Network forward FLOPs per drape.
     pub flops: f64,
+    /// Forward FLOPs per drape of every variant at the run's widths, by paper name.
+    pub flops_by_variant: Vec<(String, f64)>,
     /// Parameters of the network.
     pub parameters: usize,
-}
-
-fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
-    if n == 0 { f64::NAN } else { s / n as f64 }
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 impl SpeedReport {
@@ -114,6 +106,7 @@ impl SpeedReport {
                 .map(|s| s.pbs),
         )
     }
+
     /// Mean PBS-dagger time over the converged PBS-dagger drapes (s; NaN if none): a
     /// drape that fails in its first frame would make the simulator look fast.
     pub fn pbs_dagger(&self) -> f64 {
@@ -124,17 +117,76 @@ impl SpeedReport {
                 .map(|s| s.pbs_dagger),
         )
     }
+
     /// Mean network time per drape at batch 1 (warp, inputs, network) (s).
     pub fn network_batch1(&self) -> f64 {
-        self.samples
-            .iter()
-            .map(|s| s.warp + s.inputs + s.network)
-            .sum::<f64>()
-            / self.samples.len() as f64
+        mean(self.samples.iter().map(|s| s.warp + s.inputs + s.network))
     }
 }
 
-/// The sample's body, rebuilt from its row: shaped and posed bodies.
+/// One drape by the network, timed: medians over `repeats` runs after a warm-up.
+#[derive(Debug, Clone)]
+pub struct NetworkDrape {
+    /// The DQS warp M.
+    pub warped: Vec<Vec3>,
+    /// The prediction G^P = M + T^P (world coordinates).
+    pub prediction: Vec<Vec3>,
+    /// DQS warp (s).
+    pub warp: f64,
+    /// Inputs: normals, k-NN searches (s).
+    pub inputs: f64,
+    /// Both streams (s).
+    pub network: f64,
+}
+
+impl NetworkDrape {
+    /// Warp, inputs and network (s).
+    pub fn seconds(&self) -> f64 {
+        self.warp + self.inputs + self.network
+    }
+}
+
+/// Drapes `template` on `posed` (the shaped body `shaped` in a pose with root `root`,
+/// shape-and-pose vector `params`) with `net`, timing each stage.
+#[allow(clippy::too_many_arguments)]
+pub fn network_drape(
+    net: &Predictor,
+    template: &Template,
+    canonical: &ShapedBody<'_>,
+    shaped: &ShapedBody<'_>,
+    posed: &PosedBody,
+    root: Vec3,
+    params: &[f32],
+    repeats: usize,
+) -> NetworkDrape {
+    let (mut w, mut i, mut n) = (Vec::new(), Vec::new(), Vec::new());
+    let mut last = None;
+    for r in 0..=repeats.max(1) {
+        let t0 = Instant::now();
+        let warped = template.warp(canonical, shaped, posed);
+        let t1 = Instant::now();
+        let x = net.prepare(&posed.vertices, root, params.to_vec(), &warped);
+        let t2 = Instant::now();
+        let prediction = net.predict(&[&x]).pop().expect("one prediction");
+        let t3 = Instant::now();
+        if r > 0 {
+            w.push((t1 - t0).as_secs_f64());
+            i.push((t2 - t1).as_secs_f64());
+            n.push((t3 - t2).as_secs_f64());
+        }
+        last = Some((warped, prediction));
+    }
+    let (warped, prediction) = last.expect("ran");
+    NetworkDrape {
+        warped,
+        prediction,
+        warp: median(w),
+        inputs: median(i),
+        network: median(n),
+    }
+}
+
+/// The sample's body, rebuilt from its row: shape, pose and the shaped body.
 fn bodies<'m>(
     model: &'m BodyModel,
     row: &Row,
@@ -186,35 +238,8 @@ pub fn measure(
             opts.split.name()
         )));
     }
-    let repeats = opts.repeats.max(1);
-    // Network at batch 1: warp, inputs, streams; one warm-up call first.
-    let time_network = |row: &Row| -> Result<(f64, f64, f64), EvalError> {
-        let (_, pose, shaped) = bodies(model, row)?;
-        let posed = shaped.pose(&pose);
-        let (mut w, mut i, mut n) = (Vec::new(), Vec::new(), Vec::new());
-        for r in 0..=repeats {
-            let t0 = Instant::now();
-            let warped = template.warp(&canonical, &shaped, &posed);
-            let t1 = Instant::now();
-            let x = net.prepare(
-                &posed.vertices,
-                row.root,
-                learn::data::row_params(row),
-                &warped,
-            );
-            let t2 = Instant::now();
-            let out = net.predict(&[&x]);
-            let t3 = Instant::now();
-            assert_eq!(out.len(), 1);
-            if r > 0 {
-                w.push((t1 - t0).as_secs_f64());
-                i.push((t2 - t1).as_secs_f64());
-                n.push((t3 - t2).as_secs_f64());
-            }
-        }
-        Ok((median(w), median(i), median(n)))
-    };
     let mut samples = Vec::new();
+    let mut bodies_of_rows = Vec::with_capacity(rows.len());
     for row in &rows {
         let (shape, pose, shaped) = bodies(model, row)?;
         let posed = shaped.pose(&pose);
@@ -239,43 +264,45 @@ pub fn measure(
             triangles: model.triangles.clone(),
         };
         let dagger = drape::drape(&cloth, &row.warped, &still, &config.sim, true, &mut |_| {});
-        let (warp, inputs, network) = time_network(row)?;
+        let t = network_drape(
+            &net,
+            template,
+            &canonical,
+            &shaped,
+            &posed,
+            row.root,
+            &learn::data::row_params(row),
+            opts.repeats,
+        );
         let s = SampleSpeed {
             id: row.id,
             pbs: full.report.wall_time,
             pbs_frames: full.report.morph_frames + full.report.settle_frames,
             pbs_dagger: dagger.report.wall_time,
             pbs_dagger_frames: dagger.report.morph_frames + dagger.report.settle_frames,
-            converged: full.report.converged && dagger.report.converged,
             pbs_failure: full.report.failure.as_ref().map(|f| f.to_string()),
             pbs_dagger_failure: dagger.report.failure.as_ref().map(|f| f.to_string()),
             pbs_vs_dataset_cm: edist_cm(&full.positions, &row.draped),
             dagger_vs_dataset_cm: edist_cm(&dagger.positions, &row.draped),
-            warp,
-            inputs,
-            network,
+            warp: t.warp,
+            inputs: t.inputs,
+            network: t.network,
         };
         progress(&s);
         samples.push(s);
+        bodies_of_rows.push((shaped, posed));
     }
     // Batched: `batch` samples (the timed ones, repeated if fewer), warp and inputs
     // included, per drape.
     let b = opts.batch.max(1);
-    let batch_rows: Vec<&Row> = rows.iter().cycle().take(b).collect();
-    let batch_bodies: Vec<(ShapedBody, PosedBody)> = batch_rows
-        .iter()
-        .map(|row| {
-            let (_, pose, shaped) = bodies(model, row)?;
-            let posed = shaped.pose(&pose);
-            Ok((shaped, posed))
-        })
-        .collect::<Result<_, EvalError>>()?;
     let mut per = Vec::new();
-    for r in 0..=repeats {
+    for r in 0..=opts.repeats.max(1) {
         let t0 = Instant::now();
-        let prepared: Vec<learn::data::Prepared> = batch_rows
+        let prepared: Vec<learn::data::Prepared> = rows
             .iter()
-            .zip(&batch_bodies)
+            .zip(&bodies_of_rows)
+            .cycle()
+            .take(b)
             .map(|(row, (shaped, posed))| {
                 let warped = template.warp(&canonical, shaped, posed);
                 net.prepare(
@@ -293,11 +320,21 @@ pub fn measure(
             per.push(t0.elapsed().as_secs_f64() / b as f64);
         }
     }
-    let topology = learn::topology::Topology::new(
-        data.statics.garment_vertices.len(),
-        &data.statics.garment_triangles,
-    );
-    let params = dataset::shard::SHAPE_FIELDS.len() + 4 * data.statics.bones;
+    let flops_by_variant = [
+        Variant::Naive,
+        Variant::Global,
+        Variant::Local,
+        Variant::GlobalParams,
+    ]
+    .into_iter()
+    .map(|v| {
+        let c = ModelConfig {
+            variant: v,
+            ..net.config.model.clone()
+        };
+        (v.paper_name().to_string(), net.forward_flops(&c))
+    })
+    .collect();
     Ok(SpeedReport {
         network: net.config.model.variant.paper_name().to_string(),
         vertices: data.statics.garment_vertices.len(),
@@ -305,12 +342,8 @@ pub fn measure(
         samples,
         batch: b,
         batched_per_drape: median(per),
-        flops: learn::model::forward_flops(
-            &net.config.model,
-            params,
-            data.statics.garment_vertices.len(),
-            topology.slots,
-        ),
+        flops: net.forward_flops(&net.config.model),
+        flops_by_variant,
         parameters: net.parameters(),
     })
 }

@@ -38,6 +38,9 @@ pub struct Prepared {
     pub pen_points: Vec<Vec3>,
     /// Their unit normals.
     pub pen_normals: Vec<Vec3>,
+    /// L_RQ neighbourhoods on the target: each vertex's `rq_k` nearest target vertices
+    /// (itself first), `N * rq_k` (empty without a target or without L_RQ).
+    pub rq: Vec<u32>,
 }
 
 /// Turns rows into [`Prepared`] samples for one model config and one garment.
@@ -50,11 +53,14 @@ pub struct Preprocessor {
     /// Positions within `body_subset` of the downsampled points (GarNet-Local).
     pub local_subset: Vec<u32>,
     push_out: f32,
+    /// L_RQ neighbourhood size found on each target (0: none).
+    rq_k: usize,
 }
 
 impl Preprocessor {
     /// The subsets are computed once from the canonical body, deterministically.
-    pub fn new(statics: &Static, config: &ModelConfig, push_out_share: f64) -> Self {
+    /// `rq_k`: neighbourhood size of the L_RQ terms to find on each target (0: none).
+    pub fn new(statics: &Static, config: &ModelConfig, push_out_share: f64, rq_k: usize) -> Self {
         let canon = &statics.canonical_body;
         let body_subset = farthest_point_subset(canon, config.body_points);
         let sub: Vec<Vec3> = body_subset.iter().map(|&i| canon[i as usize]).collect();
@@ -66,6 +72,7 @@ impl Preprocessor {
             body_subset,
             local_subset,
             push_out,
+            rq_k,
         }
     }
 
@@ -112,13 +119,20 @@ impl Preprocessor {
             .zip(&normals)
             .map(|(&p, &n)| p + n * self.push_out)
             .collect();
+        let target = target.map(rel);
+        // Found here, once per sample and in parallel across a batch, not in the loss.
+        let rq = match &target {
+            Some(g) if self.rq_k > 0 => knn(g, g, self.rq_k),
+            _ => Vec::new(),
+        };
         Prepared {
             id,
             root,
             body: pts,
             params,
             warped,
-            target: target.map(rel),
+            target,
+            rq,
             pool,
             local,
             pen_points,
@@ -147,6 +161,11 @@ pub fn body_params(shape: &[f32], pose: &[glam::Quat]) -> Vec<f32> {
         p.extend_from_slice(&q.to_array());
     }
     p
+}
+
+/// Length of [`body_params`] for a skeleton of `bones` bones.
+pub fn param_count(bones: usize) -> usize {
+    dataset::shard::SHAPE_FIELDS.len() + 4 * bones
 }
 
 /// [`body_params`] of a dataset row.

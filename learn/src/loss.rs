@@ -183,14 +183,25 @@ pub fn uniform_curvature_loss(
     sq_norm(uniform_laplacian(pred, topo) - uniform_laplacian(target, topo)).mean()
 }
 
+/// Neighbourhood sizes of L_RQ^8, L_RQ^16, L_RQ^32.
+pub const RQ_SIZES: [usize; 3] = [8, 16, 32];
+
 /// For every vertex of each ground truth in `targets`, its `k` nearest vertices of that
 /// ground truth (itself first), as rows of the flattened `[B * N]`, `[B * N * k]`. The
 /// L_RQ neighbourhoods: found on G^G and shared by prediction and ground truth.
 pub fn rq_neighbourhoods(targets: &[&[Vec3]], k: usize, device: &Device) -> Tensor<1, Int> {
+    let lists: Vec<Vec<u32>> = targets.iter().map(|g| knn(g, g, k)).collect();
+    let refs: Vec<&[u32]> = lists.iter().map(|l| l.as_slice()).collect();
+    rq_rows(&refs, k, device)
+}
+
+/// Per-sample neighbour lists (indices within each sample, `N * k` each, as
+/// `Prepared::rq`) as rows of the flattened `[B * N]`, `[B * N * k]`.
+pub fn rq_rows(lists: &[&[u32]], k: usize, device: &Device) -> Tensor<1, Int> {
     let mut rows = Vec::new();
-    for (s, g) in targets.iter().enumerate() {
-        let base = (s * g.len()) as i64;
-        rows.extend(knn(g, g, k).into_iter().map(|j| base + i64::from(j)));
+    for (s, l) in lists.iter().enumerate() {
+        let base = (s * l.len() / k) as i64;
+        rows.extend(l.iter().map(|&j| base + i64::from(j)));
     }
     let len = rows.len();
     Tensor::from_data(TensorData::new(rows, [len]), device)
@@ -232,6 +243,30 @@ pub fn rayleigh_loss(
     let (gmin, gmax) = rayleigh_bounds(target, rows, k);
     let (dmin, dmax) = (pmin - gmin, pmax - gmax);
     (dmin.clone() * dmin + dmax.clone() * dmax).mean()
+}
+
+/// L_RQ^8, L_RQ^16, L_RQ^32 for the sizes whose `on` is set, from neighbourhoods `rows`
+/// found at `kmax` (the largest size on; [`rq_rows`]): each size uses the first K of
+/// every neighbourhood (nearest first).
+pub fn rayleigh_losses(
+    pred: Tensor<3>,
+    target: Tensor<3>,
+    rows: Tensor<1, Int>,
+    kmax: usize,
+    on: [bool; 3],
+) -> [Option<Tensor<1>>; 3] {
+    let [b, n, _] = pred.dims();
+    [0, 1, 2].map(|s| {
+        let k = RQ_SIZES[s];
+        (on[s] && k <= kmax).then(|| {
+            let r = rows
+                .clone()
+                .reshape([b * n, kmax])
+                .slice([0..b * n, 0..k])
+                .reshape([b * n * k]);
+            rayleigh_loss(pred.clone(), target.clone(), r, k)
+        })
+    })
 }
 
 /// Cotangents are clamped to this magnitude (angles below 5.7 degrees or above 174.3): the
@@ -336,16 +371,9 @@ impl CurvatureErrors {
         let (p, g) = (tensor(pred), tensor(target));
         let value = |t: Tensor<1>| t.into_data().try_into_vec::<f32>().expect("f32")[0] as f64;
         let mc = value(mean_curvature_loss(p.clone(), g.clone(), &self.topology));
-        let kmax = crate::train::RQ_SIZES[2];
+        let kmax = RQ_SIZES[2];
         let rows = rq_neighbourhoods(&[target], kmax, &self.device);
-        let rq = crate::train::RQ_SIZES.map(|k| {
-            let r = rows
-                .clone()
-                .reshape([n, kmax])
-                .slice([0..n, 0..k])
-                .reshape([n * k]);
-            value(rayleigh_loss(p.clone(), g.clone(), r, k))
-        });
+        let rq = rayleigh_losses(p, g, rows, kmax, [true; 3]).map(|l| value(l.expect("on")));
         [mc, rq[0], rq[1], rq[2]]
     }
 }

@@ -26,6 +26,8 @@ pub struct Predictor {
     model: GarNet,
     pre: Preprocessor,
     graph: Graph,
+    /// Length of the shape-and-pose vector ([`crate::data::param_count`]).
+    params: usize,
     device: Device,
 }
 
@@ -71,13 +73,14 @@ impl Predictor {
     pub fn untrained(config: &TrainConfig, statics: &Static) -> Self {
         let device = Device::default();
         device.seed(config.seed);
-        let params = dataset::shard::SHAPE_FIELDS.len() + 4 * statics.bones;
+        let params = crate::data::param_count(statics.bones);
         let n = statics.garment_vertices.len();
         let topology = Topology::new(n, &statics.garment_triangles);
         Self {
-            pre: Preprocessor::new(statics, &config.model, config.loss.pen_push_out),
+            pre: Preprocessor::new(statics, &config.model, config.loss.pen_push_out, 0),
             graph: Graph::new(&topology, &device),
             model: GarNet::new(&config.model, params, &device),
+            params,
             config: config.clone(),
             info: RunInfo {
                 garment: String::new(),
@@ -90,6 +93,12 @@ impl Predictor {
             },
             device,
         }
+    }
+
+    /// Forward FLOPs per drape of a network of widths `model` on this garment (the run's
+    /// own with `&self.config.model`), [`crate::model::forward_flops`].
+    pub fn forward_flops(&self, model: &crate::config::ModelConfig) -> f64 {
+        crate::model::forward_flops(model, self.params, self.graph.vertices, self.graph.slots)
     }
 
     /// Trainable parameters of the network.

@@ -89,11 +89,6 @@ impl Topology {
             .map(|r| 1.0 / (r.len() + 1) as f32)
             .collect()
     }
-
-    /// One-ring neighbours of each vertex (without the vertex).
-    pub fn one_rings(&self) -> &[Vec<u32>] {
-        &self.rings
-    }
 }
 
 /// `count` indices of `points` chosen by farthest-point sampling from index 0: a fixed,
@@ -157,7 +152,7 @@ mod tests {
             t.vertices + t.rings.iter().map(Vec::len).sum::<usize>(),
             4 + 2 * 5
         );
-        assert_eq!(t.one_rings()[1], vec![0, 2]);
+        assert_eq!(t.rings[1], vec![0, 2]);
         assert_eq!(t.slots, 4);
         assert_eq!(&t.padded[4..8], &[1, 0, 2, 1]);
         assert_eq!(&t.padded_mask[4..8], &[1.0, 1.0, 1.0, 0.0]);

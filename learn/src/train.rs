@@ -170,8 +170,13 @@ impl CurvatureScales {
     }
 }
 
-/// Neighbourhood sizes of L_RQ^8, L_RQ^16, L_RQ^32.
-pub const RQ_SIZES: [usize; 3] = [8, 16, 32];
+/// The largest L_RQ neighbourhood a config's weights use (None: L_RQ off).
+pub fn rq_kmax(w: &crate::config::LossWeights) -> Option<usize> {
+    (0..3)
+        .rev()
+        .find(|&k| w.rq[k] > 0.0)
+        .map(|k| loss::RQ_SIZES[k])
+}
 
 impl Setup {
     /// Builds the fixed parts for a dataset's garment.
@@ -180,10 +185,15 @@ impl Setup {
         let topology = Topology::new(st.garment_vertices.len(), &st.garment_triangles);
         Self {
             config: config.clone(),
-            pre: Preprocessor::new(st, &config.model, config.loss.pen_push_out),
+            pre: Preprocessor::new(
+                st,
+                &config.model,
+                config.loss.pen_push_out,
+                rq_kmax(&config.loss).unwrap_or(0),
+            ),
             graph: Graph::new(&topology, device),
             loss_topology: LossTopology::new(&topology, device),
-            params: dataset::shard::SHAPE_FIELDS.len() + 4 * st.bones,
+            params: crate::data::param_count(st.bones),
             scales: CurvatureScales::default(),
             topology,
             device: device.clone(),
@@ -210,31 +220,18 @@ impl Setup {
             * w.physics_scale;
         let mut terms = Terms::default();
         let sc = &self.scales;
-        // L_RQ^K on the ground truth's K nearest neighbours (the first K of the largest set).
-        if let Some(kmax) = (0..3).rev().find(|&k| w.rq[k] > 0.0).map(|k| RQ_SIZES[k]) {
-            let [b, n, _] = pred.dims();
-            let targets: Vec<&[glam::Vec3]> = samples
-                .iter()
-                .map(|s| {
-                    s.target
-                        .as_deref()
-                        .expect("training samples carry their target")
-                })
-                .collect();
-            let rows = loss::rq_neighbourhoods(&targets, kmax, &self.device);
-            for k in 0..3 {
-                let kk = RQ_SIZES[k];
-                if w.rq[k] <= 0.0 {
-                    continue;
+        // L_RQ^K on the ground truth's K nearest neighbours (the first K of the largest set,
+        // found once per sample by the preprocessor).
+        if let Some(kmax) = rq_kmax(w) {
+            let lists: Vec<&[u32]> = samples.iter().map(|s| s.rq.as_slice()).collect();
+            let rows = loss::rq_rows(&lists, kmax, &self.device);
+            let on = w.rq.map(|x| x > 0.0);
+            let losses = loss::rayleigh_losses(pred.clone(), target.clone(), rows, kmax, on);
+            for (k, l) in losses.into_iter().enumerate() {
+                if let Some(l) = l {
+                    terms.rq[k] = scalar(&l);
+                    total = total + l * (w.rq[k] * sc.rq[k]);
                 }
-                let r = rows
-                    .clone()
-                    .reshape([b * n, kmax])
-                    .slice([0..b * n, 0..kk])
-                    .reshape([b * n * kk]);
-                let l = loss::rayleigh_loss(pred.clone(), target.clone(), r, kk);
-                terms.rq[k] = scalar(&l);
-                total = total + l * (w.rq[k] * sc.rq[k]);
             }
         }
         if w.mc > 0.0 {
@@ -355,6 +352,30 @@ fn epoch_order(data: &Dataset, config: &TrainConfig, epoch: usize) -> Vec<Vec<St
         .collect()
 }
 
+/// Batches of epoch `epoch` as the loop below makes them: each group of shards is
+/// shuffled and cut into batches on its own, so a group's last batch may be partial.
+fn epoch_batches(
+    data: &Dataset,
+    config: &TrainConfig,
+    subset: Option<&std::collections::HashSet<u64>>,
+    epoch: usize,
+) -> usize {
+    epoch_order(data, config, epoch)
+        .iter()
+        .map(|group| {
+            let rows: usize = data
+                .manifest
+                .shards
+                .iter()
+                .filter(|s| group.contains(&s.file))
+                .flat_map(|s| s.samples.iter())
+                .filter(|r| r.ok && subset.is_none_or(|k| k.contains(&r.plan.id)))
+                .count();
+            rows.div_ceil(config.batch_size)
+        })
+        .sum()
+}
+
 /// Trains (or resumes) a run. Returns the final state.
 pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnError> {
     let data = Dataset::open(&opts.data)?;
@@ -406,17 +427,18 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     if config.loss.has_curvature() && config.loss.rescale_curvature {
         setup.scales = curvature_scales(&setup, &model, &data, &opts.run)?;
     }
-    let total_batches_hint: usize = {
-        let n = data.count(Split::Train);
-        let n = if config.max_train_samples > 0 {
-            n.min(config.max_train_samples)
-        } else {
-            n
-        };
-        n.div_ceil(config.batch_size)
-    };
-    let bar = crate::run::progress(opts.progress, (config.epochs * total_batches_hint) as u64);
-    bar.set_position((state.epoch * total_batches_hint + state.batch) as u64);
+    // Steps of the whole run (the learning-rate schedule's length) and before each epoch.
+    let per_epoch: Vec<usize> = (0..config.epochs)
+        .map(|e| epoch_batches(&data, config, subset.as_ref(), e))
+        .collect();
+    let total_steps: usize = per_epoch.iter().sum();
+    let bar = crate::run::progress(opts.progress, total_steps as u64);
+    bar.set_position(
+        (per_epoch[..state.epoch.min(config.epochs)]
+            .iter()
+            .sum::<usize>()
+            + state.batch) as u64,
+    );
     let started = Instant::now();
     let seconds_before = state.seconds;
     let cap = config.wall_clock_minutes * 60.0;
@@ -459,7 +481,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                 let refs: Vec<&Prepared> = prepared.iter().collect();
                 let (total, terms) = setup.losses(&model, &refs);
                 let grads = GradientsParams::from_grads(total.backward(), &model);
-                let lr = config.rate_at(state.steps, (config.epochs * total_batches_hint) as u64);
+                let lr = config.rate_at(state.steps, total_steps as u64);
                 model = optim.step(lr, model, grads);
                 state.batch = batch_index;
                 state.steps += 1;

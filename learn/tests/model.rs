@@ -114,7 +114,7 @@ fn feastconv_matches_its_formula() {
     let (w, u, c, b) = (&params[0], &params[1], &params[2], &params[3]);
     let xs = x.into_data().try_to_vec::<f32>().unwrap();
     let xv = |i: usize, k: usize| xs[i * cin + k];
-    let rings = topo.one_rings();
+    let rings = &topo.rings;
     for i in 0..topo.vertices {
         let mut nb = vec![i];
         nb.extend(rings[i].iter().map(|&j| j as usize));

@@ -116,10 +116,7 @@ fn parse_variant(v: &str) -> anyhow::Result<learn::config::Variant> {
         .map_err(|_| anyhow::anyhow!("unknown variant {v:?}: naive, global, local, global-params"))
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+use eval::metrics::median;
 
 /// `drape bench predict`.
 #[allow(clippy::too_many_arguments)]
@@ -167,14 +164,13 @@ fn bench_predict(
             let warped = t.warp(&canonical, &canonical, &posed);
             warp.push(t0.elapsed().as_secs_f64());
             let p = learn::data::body_params(
-                &ShapeParams::default().named().map(|(_, v)| v),
+                &ShapeParams::default().values(),
                 &resolved.pose.rotations,
             );
             samples.push((posed.vertices, resolved.pose.root_translation, p, warped));
         }
         let warp = median(warp);
-        let bones = (samples[0].2.len() - dataset::shard::SHAPE_FIELDS.len()) / 4;
-        let statics = super::learn::statics(&t, &model, &canonical.vertices, bones);
+        let statics = dataset::shard::Static::new(&t.mesh, &model, &canonical.vertices);
         for &variant in &variants {
             let mut c = base.clone();
             c.model.variant = variant;
@@ -358,27 +354,12 @@ fn bench_speedup(
         r.parameters,
         r.flops / 1e9
     );
-    let topology = learn::topology::Topology::new(r.vertices, &data.statics.garment_triangles);
-    let params = dataset::shard::SHAPE_FIELDS.len() + 4 * data.statics.bones;
     println!(
         "GFLOPs per forward pass of each variant at this run's widths and {} vertices:",
         r.vertices
     );
-    for v in [
-        learn::config::Variant::Naive,
-        learn::config::Variant::Global,
-        learn::config::Variant::Local,
-        learn::config::Variant::GlobalParams,
-    ] {
-        let c = learn::config::ModelConfig {
-            variant: v,
-            ..config.model.clone()
-        };
-        println!(
-            "  {:<20} {:.3}",
-            v.paper_name(),
-            learn::model::forward_flops(&c, params, r.vertices, topology.slots) / 1e9
-        );
+    for (name, flops) in &r.flops_by_variant {
+        println!("  {name:<20} {:.3}", flops / 1e9);
     }
     if let Some(p) = json {
         std::fs::write(&p, serde_json::to_vec_pretty(&r)?)?;

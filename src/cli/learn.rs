@@ -86,23 +86,6 @@ pub struct PredictArgs {
     target: BodyOutputArgs,
 }
 
-/// What a network needs to know of a garment and the body model (as a dataset's static
-/// file holds it).
-pub fn statics(
-    t: &sim::garment::Template,
-    model: &sim::body::BodyModel,
-    canonical: &[glam::Vec3],
-    bones: usize,
-) -> dataset::shard::Static {
-    dataset::shard::Static {
-        garment_vertices: t.mesh.vertices.clone(),
-        garment_triangles: t.mesh.triangles.clone(),
-        body_triangles: model.triangles.clone(),
-        canonical_body: canonical.to_vec(),
-        bones,
-    }
-}
-
 /// Runs `drape predict`: `G^P = M + T^P` with `M = dqs(M0, body)`.
 pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
@@ -113,18 +96,13 @@ pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
     let target = model.shape(&params)?;
     let resolved = pose_spec::resolve(&args.target.pose, &target, &library)?;
     let t = template(ctx, &info.garment, Some(info.resolution), &model)?;
-    let statics = statics(
-        &t,
-        &model,
-        &canonical.vertices,
-        resolved.pose.rotations.len(),
-    );
+    let statics = dataset::shard::Static::new(&t.mesh, &model, &canonical.vertices);
     let net = Predictor::open(&args.run, &statics)?;
     let loaded = t0.elapsed().as_secs_f64();
     let t1 = std::time::Instant::now();
     let posed = target.pose(&resolved.pose);
     let warped = t.warp(&canonical, &target, &posed);
-    let p = body_params(&params.named().map(|(_, v)| v), &resolved.pose.rotations);
+    let p = body_params(&params.values(), &resolved.pose.rotations);
     let x = net.prepare(&posed.vertices, resolved.pose.root_translation, p, &warped);
     let pred = net.predict(&[&x]).pop().expect("one prediction");
     let seconds = t1.elapsed().as_secs_f64();

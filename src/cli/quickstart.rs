@@ -53,10 +53,6 @@ pub struct Reference {
     pub samples: Vec<(u64, f64, f64)>,
 }
 
-fn write(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    std::fs::write(path, bytes).map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))
-}
-
 /// Runs `drape quickstart`.
 pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     let run_dir = args.run.clone().unwrap_or_else(|| default_run(ctx));
@@ -78,8 +74,7 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     })?;
     let canonical = model.shape(&ShapeParams::default())?;
     let cloth = ClothModel::new(&template.mesh, &dc.sim, &[])?;
-    let statics =
-        super::learn::statics(&template, &model, &canonical.vertices, model.skeleton.len());
+    let statics = dataset::shard::Static::new(&template.mesh, &model, &canonical.vertices);
     let net = Predictor::open(&run_dir, &statics)?;
     let poser = Poser::new(&dc, &model, library)?;
     let plan = SamplePlan {
@@ -132,40 +127,36 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
         );
     }
 
-    // The network: DQS warp, inputs, both streams. One untimed call first (allocations).
-    let params =
-        learn::data::body_params(&drawn.shape.named().map(|(_, v)| v), &drawn.pose.rotations);
-    let mut times = Vec::new();
-    let mut out = None;
-    for _ in 0..4 {
-        let t0 = Instant::now();
-        let warped = template.warp(&canonical, &shaped, &posed);
-        let x = net.prepare(
-            &posed.vertices,
-            drawn.pose.root_translation,
-            params.clone(),
-            &warped,
-        );
-        let pred = net.predict(&[&x]).pop().expect("one prediction");
-        times.push(t0.elapsed().as_secs_f64());
-        out = Some((warped, pred));
-    }
-    let (warped, pred) = out.expect("ran");
-    times.remove(0);
-    times.sort_by(f64::total_cmp);
-    let net_seconds = times[times.len() / 2];
+    // The network: DQS warp, inputs, both streams; medians of 3 after a warm-up call.
+    let params = learn::data::body_params(&drawn.shape.values(), &drawn.pose.rotations);
+    let timed = eval::speed::network_drape(
+        &net,
+        &template,
+        &canonical,
+        &shaped,
+        &posed,
+        drawn.pose.root_translation,
+        &params,
+        3,
+    );
+    let eval::speed::NetworkDrape {
+        warped,
+        prediction: pred,
+        ..
+    } = &timed;
+    let net_seconds = timed.seconds();
 
     let truth = &sim_result.positions;
     let tris = &template.mesh.triangles;
-    let edist = eval::metrics::edist_cm(&pred, truth);
-    let enorm = eval::metrics::enorm_deg(&pred, truth, tris);
-    let dqs_edist = eval::metrics::edist_cm(&warped, truth);
-    let dqs_enorm = eval::metrics::enorm_deg(&warped, truth, tris);
+    let edist = eval::metrics::edist_cm(pred, truth);
+    let enorm = eval::metrics::enorm_deg(pred, truth, tris);
+    let dqs_edist = eval::metrics::edist_cm(warped, truth);
+    let dqs_enorm = eval::metrics::enorm_deg(warped, truth, tris);
 
     std::fs::create_dir_all(&args.output)
         .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", args.output.display()))?;
     let (img, _) =
-        eval::report::sample_render(&posed.vertices, &model.triangles, tris, truth, &pred)?;
+        eval::report::sample_render(&posed.vertices, &model.triangles, tris, truth, pred)?;
     let header = format!(
         "drape quickstart, seed {}, {} pose",
         args.seed, drawn.family
@@ -176,17 +167,26 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
             TriMesh::new(posed.vertices.clone(), model.triangles.clone()),
         ),
         ("simulator.obj", TriMesh::new(truth.clone(), tris.clone())),
-        ("network.obj", TriMesh::new(pred, tris.clone())),
-        ("dqs.obj", TriMesh::new(warped, tris.clone())),
+        ("network.obj", TriMesh::new(pred.clone(), tris.clone())),
+        ("dqs.obj", TriMesh::new(warped.clone(), tris.clone())),
     ];
-    for (name, mesh) in &meshes {
-        write(
-            &args.output.join(name),
-            mesh.to_obj(&format!("{header}: {name}")).as_bytes(),
-        )?;
-    }
     let png = args.output.join("quickstart.png");
-    write(&png, &eval::render::encode_png(&img)?)?;
+    let png_bytes = eval::render::encode_png(&img)?;
+    let objs: Vec<(PathBuf, String)> = meshes
+        .iter()
+        .map(|(name, mesh)| {
+            (
+                args.output.join(name),
+                mesh.to_obj(&format!("{header}: {name}")),
+            )
+        })
+        .collect();
+    let mut files: Vec<(&Path, &[u8])> = objs
+        .iter()
+        .map(|(p, t)| (p.as_path(), t.as_bytes()))
+        .collect();
+    files.push((&png, &png_bytes));
+    sim::io::write_all_or_nothing(&files)?;
 
     println!(
         "simulator: {:.2} s ({} + {} frames, {} threads)",
@@ -196,7 +196,7 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
         rayon::current_num_threads()
     );
     println!(
-        "network:   {:.1} ms (DQS warp, inputs and both streams; median of 3 after a warm-up)",
+        "network:   {:.1} ms (DQS warp, inputs and both streams; medians of 3 after a warm-up)",
         net_seconds * 1e3
     );
     println!("speed-up:  {:.0}x", sim_seconds / net_seconds);
@@ -218,8 +218,7 @@ fn reference(ctx: &Context, run_dir: &Path, dc: &DatasetConfig, out: &Path) -> a
     let drapes = dataset::generate::redrape(dc, &ctx.assets, &ids)?;
     let (model, _, template) = dataset::generate::load_inputs(dc, &ctx.assets, &mut |_| {})?;
     let canonical = model.shape(&ShapeParams::default())?;
-    let statics =
-        super::learn::statics(&template, &model, &canonical.vertices, model.skeleton.len());
+    let statics = dataset::shard::Static::new(&template.mesh, &model, &canonical.vertices);
     let net = Predictor::open(run_dir, &statics)?;
     let rows: Vec<dataset::shard::Row> = drapes.into_iter().filter_map(|(r, _)| r).collect();
     if rows.is_empty() {
@@ -245,7 +244,7 @@ fn reference(ctx: &Context, run_dir: &Path, dc: &DatasetConfig, out: &Path) -> a
         config_sha256: dc.hash(),
         samples,
     };
-    write(out, &serde_json::to_vec_pretty(&r)?)?;
+    sim::io::write_all_or_nothing(&[(out, &serde_json::to_vec_pretty(&r)?)])?;
     println!(
         "{} of 10 test samples converged; {:.1} s -> {}",
         rows.len(),

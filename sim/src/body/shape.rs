@@ -72,7 +72,12 @@ impl ShapeParams {
         ]
     }
 
-    /// The inverse of [`ShapeParams::named`]: parameters from their values in that order.
+    /// The values of [`ShapeParams::named`], in its order.
+    pub fn values(&self) -> [f32; 9] {
+        self.named().map(|(_, v)| v)
+    }
+
+    /// The inverse of [`ShapeParams::values`]: parameters from their values in that order.
     pub fn from_named(v: [f32; 9]) -> Self {
         Self {
             gender: v[0],
