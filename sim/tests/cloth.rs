@@ -397,3 +397,78 @@ fn same_bits_on_any_thread_count_with_a_moving_body() {
     assert_eq!(a.report.settle_frames, b.report.settle_frames);
     assert_eq!(a.report.strain, b.report.strain);
 }
+
+#[test]
+fn a_distorted_start_is_repaired_not_called_an_explosion() {
+    // A cloth over a sphere with one corner pulled 0.3 m away (its edges 15 times their
+    // rest length, as a DQS warp stretches armpit edges): the first frame pulls the corner
+    // back further than the speed limit allows in a frame, and the drape still comes to rest.
+    let config = SimConfig::default();
+    let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 48, 24);
+    let cloth = primitives::grid(
+        Vec3::new(-0.3, 0.35, -0.3),
+        Vec3::X * 0.6,
+        Vec3::Z * 0.6,
+        30,
+        30,
+    );
+    let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+    let mut start = cloth.vertices.clone();
+    start[0] += Vec3::new(-0.3, 0.0, 0.0);
+    let body = StaticBody {
+        vertices: sphere.vertices.clone(),
+        triangles: sphere.triangles.clone(),
+    };
+    let mut first = None;
+    let d = drape::drape(&model, &start, &body, &config, false, &mut |p| {
+        first.get_or_insert(p.max_displacement);
+    });
+    let limit = 2.0 * config.max_velocity * config.frame_dt();
+    assert!(first.unwrap() > limit, "first frame moved {first:?} m");
+    assert!(d.report.converged, "{:?}", d.report.failure);
+    assert!(
+        d.report.strain.max < config.stretch_limit + 0.01,
+        "{:?}",
+        d.report.strain
+    );
+}
+
+#[test]
+fn a_cloth_outrunning_the_speed_limit_is_an_explosion() {
+    // A sphere shooting up under a cloth at 15 m/s carries it along at three times the
+    // speed limit, frame after frame: the drape fails as an explosion, not later as
+    // anything else.
+    let config = SimConfig::default();
+    let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 32, 16);
+    let cloth = primitives::grid(Vec3::new(-0.5, 0.31, -0.5), Vec3::X, Vec3::Z, 30, 30);
+    let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+    let motion = FnMotion {
+        frames: 30,
+        at: |k: u32| {
+            sphere
+                .vertices
+                .iter()
+                .map(|v| *v + Vec3::Y * 0.25 * k as f32)
+                .collect()
+        },
+        triangles: sphere.triangles.clone(),
+    };
+    let d = drape::drape(
+        &model,
+        &cloth.vertices,
+        &motion,
+        &config,
+        false,
+        &mut |_| {},
+    );
+    match d.report.failure {
+        Some(drape::Failure::Explosion {
+            frame,
+            displacement,
+        }) => {
+            assert_eq!(frame, drape::EXPLOSION_FRAMES, "{displacement}");
+            assert!(displacement > 2.0 * config.max_velocity * config.frame_dt());
+        }
+        other => panic!("expected an explosion, got {other:?}"),
+    }
+}
