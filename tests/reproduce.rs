@@ -16,6 +16,11 @@ fn reproduce_runs_a_tiny_plan_resumes_and_keeps_to_its_budget() {
         .replace("epochs = 150", "epochs = 3");
     std::fs::write(dir.join("local.toml"), &tiny).unwrap();
     std::fs::write(
+        dir.join("naive.toml"),
+        tiny.replace("variant = \"local\"", "variant = \"naive\""),
+    )
+    .unwrap();
+    std::fs::write(
         dir.join("rq.toml"),
         format!("{tiny}\n[loss]\nvert = 1.0\nphysics_scale = 0.1\nrq = [500.0, 50.0, 10.0]\n"),
     )
@@ -25,6 +30,7 @@ fn reproduce_runs_a_tiny_plan_resumes_and_keeps_to_its_budget() {
             r#"name = "tiny"
 budget_hours = {budget}
 eval_planned_hours = 0.01
+parallel_runs = 2
 
 [[datasets]]
 key = "tshirt"
@@ -34,6 +40,12 @@ planned_hours = 0.01
 [[runs]]
 key = "tshirt-local"
 config = "{0}/local.toml"
+data = "tshirt"
+planned_hours = 0.01
+
+[[runs]]
+key = "tshirt-naive"
+config = "{0}/naive.toml"
 data = "tshirt"
 planned_hours = 0.01
 
@@ -64,6 +76,23 @@ samples = 1
     };
     let (ok, text) = reproduce("plan.toml");
     assert!(ok, "{text}");
+    // Two runs at once, each logging to its file; the fine-tune starts only once the run
+    // it starts from has finished.
+    for f in ["logs/train-tshirt-local.log", "logs/train-tshirt-naive.log"] {
+        assert!(out.join(f).exists(), "{f} missing: {text}");
+    }
+    let at = |s: &str| {
+        text.find(s)
+            .unwrap_or_else(|| panic!("{s:?} missing: {text}"))
+    };
+    assert!(
+        at("== train tshirt-local: finished") < at("== train tshirt-local-rq on"),
+        "{text}"
+    );
+    assert!(
+        at("== train tshirt-naive on") < at("== train tshirt-local: finished"),
+        "{text}"
+    );
     for f in [
         "data/tshirt/manifest.json",
         "runs/tshirt-local/best.bpk",
@@ -125,6 +154,16 @@ samples = 1
             .all(|v| v == true),
         "{ledger}"
     );
+
+    // The machine's hours count overlapping runs once.
+    let stage_sum: f64 = ledger["seconds"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|v| v.as_f64().unwrap())
+        .sum();
+    let machine = ledger["machine_seconds"].as_f64().unwrap();
+    assert!(machine > 0.0 && machine < stage_sum, "{ledger}");
 
     // Again: every stage is done, nothing runs, the ledger's hours stay.
     let (ok, text) = reproduce("plan.toml");

@@ -61,10 +61,19 @@ pub struct Plan {
     pub eval_planned_hours: f64,
     /// Datasets, generated first.
     pub datasets: Vec<PlanDataset>,
-    /// Runs, trained in order (a fine-tune after the run it starts from).
+    /// Runs, started in order (a fine-tune once the run it starts from has finished).
     pub runs: Vec<PlanRun>,
+    /// Training runs at once (default 1). Each gets `cores / parallel_runs` threads: on the
+    /// 2-core reference machine one training process on one thread is about as fast as on
+    /// two (docs/bench.md), so two at once nearly double the plan's training throughput.
+    #[serde(default = "one")]
+    pub parallel_runs: usize,
     /// The speed-up measurement.
     pub speedup: PlanSpeedup,
+}
+
+fn one() -> usize {
+    1
 }
 
 impl Plan {
@@ -86,6 +95,9 @@ impl Plan {
     pub fn validate(&self) -> Result<(), String> {
         if !(self.budget_hours > 0.0) {
             return Err("budget_hours must be positive".into());
+        }
+        if self.parallel_runs == 0 {
+            return Err("parallel_runs must be at least 1".into());
         }
         let mut seen = std::collections::BTreeSet::new();
         for d in &self.datasets {
@@ -139,25 +151,61 @@ impl Plan {
         v.push(("eval".into(), self.eval_planned_hours));
         v
     }
+
+    /// Planned machine hours of the whole plan: generation and evaluation, plus the runs'
+    /// hours shared among `parallel_runs` at once.
+    pub fn planned_machine_hours(&self) -> f64 {
+        self.datasets.iter().map(|d| d.planned_hours).sum::<f64>()
+            + self.runs.iter().map(|r| r.planned_hours).sum::<f64>() / self.parallel_runs as f64
+            + self.eval_planned_hours
+    }
 }
 
 /// Measured time of each stage, kept in `OUT/stages.json` across interruptions.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Ledger {
-    /// Seconds spent per stage (all invocations).
+    /// Wall seconds spent per stage (all invocations). Training stages may overlap.
     pub seconds: BTreeMap<String, f64>,
     /// Stages finished.
     pub done: BTreeMap<String, bool>,
+    /// Wall seconds of the machine while any stage ran: what the budget counts.
+    #[serde(default)]
+    pub machine_seconds: f64,
+}
+
+/// What the heartbeat of `drape reproduce` writes to `OUT/stages.running.json` every 30 s,
+/// so that a session that ends abruptly still counts its hours on the next run.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Running {
+    /// Machine seconds of the unfinished phase so far.
+    pub machine: f64,
+    /// Seconds so far of each stage that was running.
+    pub stages: BTreeMap<String, f64>,
 }
 
 impl Ledger {
-    /// Reads `path` (empty if it does not exist).
+    /// Reads `path` (empty if it does not exist). A ledger written before machine time was
+    /// kept (stages ran one at a time then) takes the sum of its stages.
     pub fn load(path: &Path) -> Result<Self, EvalError> {
         match std::fs::read(path) {
-            Ok(b) => serde_json::from_slice(&b)
-                .map_err(|e| EvalError::Invalid(format!("{}: {e}", path.display()))),
+            Ok(b) => {
+                let mut l: Ledger = serde_json::from_slice(&b)
+                    .map_err(|e| EvalError::Invalid(format!("{}: {e}", path.display())))?;
+                if l.machine_seconds == 0.0 {
+                    l.machine_seconds = l.seconds.values().sum();
+                }
+                Ok(l)
+            }
             Err(_) => Ok(Self::default()),
         }
+    }
+
+    /// Adds what a killed run's heartbeat recorded.
+    pub fn absorb(&mut self, running: &Running) {
+        for (name, s) in &running.stages {
+            *self.seconds.entry(name.clone()).or_default() += s;
+        }
+        self.machine_seconds += running.machine;
     }
 
     /// Writes it atomically.
@@ -167,10 +215,10 @@ impl Ledger {
         Ok(())
     }
 
-    /// Total measured hours.
+    /// Measured machine hours.
     pub fn hours(&self) -> f64 {
-        // Plus zero: an empty float sum is -0.0, which would print as "-0.00".
-        self.seconds.values().sum::<f64>() / 3600.0 + 0.0
+        // Plus zero: -0.0 would print as "-0.00".
+        self.machine_seconds / 3600.0 + 0.0
     }
 }
 
@@ -805,9 +853,7 @@ pub fn write_report(
         .unwrap();
     }
     writeln!(w, "\n## Compute budget: planned and measured machine hours\n\n| stage | planned | measured | done |\n|---|---|---|---|").unwrap();
-    let mut planned_total = 0.0;
     for (stage, planned) in plan.stages() {
-        planned_total += planned;
         writeln!(
             w,
             "| {stage} | {planned:.2} | {} | {} |",
@@ -822,11 +868,21 @@ pub fn write_report(
     }
     writeln!(
         w,
-        "| total | {planned_total:.2} | {:.2} | budget {} h |",
+        "| machine total | {:.2} | {:.2} | budget {} h |",
+        plan.planned_machine_hours(),
         ledger.hours(),
         plan.budget_hours
     )
     .unwrap();
+    if plan.parallel_runs > 1 {
+        writeln!(
+            w,
+            "\n{} training runs at once, each on {} of the machine's threads: the stages' own hours add up to more than the machine's.",
+            plan.parallel_runs,
+            (std::thread::available_parallelism().map_or(1, |n| n.get()) / plan.parallel_runs).max(1)
+        )
+        .unwrap();
+    }
 
     std::fs::create_dir_all(docs).map_err(|e| EvalError::Io {
         path: docs.to_path_buf(),
