@@ -4,6 +4,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
@@ -173,8 +174,8 @@ pub struct Ledger {
     pub machine_seconds: f64,
 }
 
-/// What the heartbeat of `drape reproduce` writes to `OUT/stages.running.json` every 30 s,
-/// so that a session that ends abruptly still counts its hours on the next run.
+/// What the heartbeat of an earlier `drape reproduce` wrote to `OUT/stages.running.json`
+/// (read once and folded into the ledger; the ledger itself now carries the time).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Running {
     /// Machine seconds of the unfinished phase so far.
@@ -183,15 +184,32 @@ pub struct Running {
     pub stages: BTreeMap<String, f64>,
 }
 
+impl Running {
+    /// Parses a heartbeat file: this struct, or the oldest form `[stage, seconds]`.
+    pub fn parse(bytes: &[u8]) -> Option<Self> {
+        serde_json::from_slice::<Running>(bytes).ok().or_else(|| {
+            serde_json::from_slice::<(String, f64)>(bytes)
+                .ok()
+                .map(|(name, s)| Running {
+                    machine: s,
+                    stages: [(name, s)].into(),
+                })
+        })
+    }
+}
+
 impl Ledger {
     /// Reads `path` (empty if it does not exist). A ledger written before machine time was
     /// kept (stages ran one at a time then) takes the sum of its stages.
     pub fn load(path: &Path) -> Result<Self, EvalError> {
         match std::fs::read(path) {
             Ok(b) => {
-                let mut l: Ledger = serde_json::from_slice(&b)
-                    .map_err(|e| EvalError::Invalid(format!("{}: {e}", path.display())))?;
-                if l.machine_seconds == 0.0 {
+                let bad =
+                    |e: serde_json::Error| EvalError::Invalid(format!("{}: {e}", path.display()));
+                let v: serde_json::Value = serde_json::from_slice(&b).map_err(bad)?;
+                let old = v.get("machine_seconds").is_none();
+                let mut l: Ledger = serde_json::from_value(v).map_err(bad)?;
+                if old {
                     l.machine_seconds = l.seconds.values().sum();
                 }
                 Ok(l)
@@ -219,6 +237,86 @@ impl Ledger {
     pub fn hours(&self) -> f64 {
         // Plus zero: -0.0 would print as "-0.00".
         self.machine_seconds / 3600.0 + 0.0
+    }
+}
+
+/// The ledger and the clocks of the stages running now. Time goes into the ledger, and the
+/// ledger to its file, at every start and end of a stage and at every [`Clock::credit`]
+/// (`drape reproduce` calls it every 30 s): a session that ends abruptly loses at most the
+/// time since the last credit and never counts any twice.
+#[derive(Debug)]
+pub struct Clock {
+    /// What has been credited.
+    pub ledger: Ledger,
+    path: PathBuf,
+    /// Since when machine time is not yet credited (while any stage runs).
+    phase: Option<Instant>,
+    /// Since when each running stage's time is not yet credited.
+    stages: BTreeMap<String, Instant>,
+}
+
+impl Clock {
+    /// A clock over `ledger`, saved to `path`.
+    pub fn new(ledger: Ledger, path: &Path) -> Self {
+        Self {
+            ledger,
+            path: path.to_path_buf(),
+            phase: None,
+            stages: BTreeMap::new(),
+        }
+    }
+
+    /// Credits the time since the last credit to the running stages and the machine, and
+    /// saves the ledger.
+    pub fn credit(&mut self) -> Result<(), EvalError> {
+        let now = Instant::now();
+        if let Some(p) = self.phase.as_mut() {
+            self.ledger.machine_seconds += (now - *p).as_secs_f64();
+            *p = now;
+        }
+        for (name, t) in self.stages.iter_mut() {
+            *self.ledger.seconds.entry(name.clone()).or_default() += (now - *t).as_secs_f64();
+            *t = now;
+        }
+        self.ledger.save(&self.path)
+    }
+
+    /// Stage `name` starts now.
+    pub fn start(&mut self, name: &str) -> Result<(), EvalError> {
+        self.credit()?;
+        let now = Instant::now();
+        self.phase.get_or_insert(now);
+        self.stages.insert(name.to_string(), now);
+        Ok(())
+    }
+
+    /// Stage `name` ends now, finished or not.
+    pub fn end(&mut self, name: &str, done: bool) -> Result<(), EvalError> {
+        self.credit()?;
+        self.stages.remove(name);
+        if self.stages.is_empty() {
+            self.phase = None;
+        }
+        self.ledger.done.insert(name.to_string(), done);
+        self.ledger.save(&self.path)
+    }
+
+    /// Machine hours, credited or not.
+    pub fn hours(&self) -> f64 {
+        self.ledger.hours()
+            + self
+                .phase
+                .map_or(0.0, |p| p.elapsed().as_secs_f64() / 3600.0)
+    }
+
+    /// Hours of stage `name`, credited or not.
+    pub fn stage_hours(&self, name: &str) -> f64 {
+        (self.ledger.seconds.get(name).copied().unwrap_or(0.0)
+            + self
+                .stages
+                .get(name)
+                .map_or(0.0, |t| t.elapsed().as_secs_f64()))
+            / 3600.0
     }
 }
 
@@ -906,6 +1004,70 @@ pub fn write_report(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("drape-repro-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d.join("stages.json")
+    }
+
+    #[test]
+    fn the_clock_counts_overlapping_stages_once_for_the_machine() {
+        let path = scratch("clock");
+        let mut c = Clock::new(Ledger::default(), &path);
+        let pause = || std::thread::sleep(std::time::Duration::from_millis(60));
+        c.start("a").unwrap();
+        pause();
+        c.start("b").unwrap(); // a and b overlap from here
+        pause();
+        c.end("a", true).unwrap();
+        pause();
+        c.credit().unwrap(); // a heartbeat: b's time so far is saved
+        let saved = Ledger::load(&path).unwrap();
+        let (a, b) = (saved.seconds["a"], saved.seconds["b"]);
+        assert!((0.11..5.0).contains(&a), "{a}");
+        assert!((0.11..5.0).contains(&b), "{b}");
+        // The machine ran 0.18 s, less than the stages' 0.24 s together.
+        assert!(saved.machine_seconds >= 0.17 && saved.machine_seconds < a + b - 0.03);
+        c.end("b", false).unwrap();
+        let l = Ledger::load(&path).unwrap();
+        assert!(l.done["a"] && !l.done["b"]);
+        // Nothing runs: no more time is counted.
+        pause();
+        c.credit().unwrap();
+        assert_eq!(Ledger::load(&path).unwrap(), l);
+        assert!((c.hours() - l.hours()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn older_ledgers_and_heartbeats_are_read() {
+        let path = scratch("old");
+        // A ledger from before machine time was kept: its stages ran one at a time.
+        std::fs::write(
+            &path,
+            r#"{"seconds": {"gen tshirt": 1000.0, "gen sweater": 500.0}, "done": {"gen tshirt": true}}"#,
+        )
+        .unwrap();
+        let mut l = Ledger::load(&path).unwrap();
+        assert_eq!(l.machine_seconds, 1500.0);
+        // A ledger with machine time keeps it, even at zero.
+        let mut zero = l.clone();
+        zero.machine_seconds = 0.0;
+        zero.save(&path).unwrap();
+        assert_eq!(Ledger::load(&path).unwrap().machine_seconds, 0.0);
+        // Both heartbeat forms.
+        let old = Running::parse(br#"["gen sweater", 30.0]"#).unwrap();
+        l.absorb(&old);
+        assert_eq!(l.seconds["gen sweater"], 530.0);
+        assert_eq!(l.machine_seconds, 1530.0);
+        let new =
+            Running::parse(br#"{"machine": 10.0, "stages": {"train a": 10.0, "train b": 9.0}}"#)
+                .unwrap();
+        l.absorb(&new);
+        assert_eq!(l.machine_seconds, 1540.0);
+        assert_eq!(l.seconds["train b"], 9.0);
+        assert!(Running::parse(b"not json").is_none());
+    }
 
     #[test]
     fn the_paper_tables_parse_and_map_to_our_runs() {

@@ -5,7 +5,7 @@
 //! continues. Each stage runs as a child `drape` process, so its output is what the
 //! stage's own command prints.
 
-use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::sync::Mutex;
@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use clap::Args;
-use eval::repro::{Ledger, Plan, Running};
+use eval::repro::{Clock, Ledger, Plan, PlanRun, Running};
 
 use super::Context;
 
@@ -35,7 +35,7 @@ pub struct ReproduceArgs {
 }
 
 /// A child `drape` running `args` with `threads` worker threads (all cores if `None`).
-/// `log`: where its output goes (inherited from this process if `None`).
+/// `log`: a file its output is appended to (inherited from this process if `None`).
 fn spawn(
     ctx: &Context,
     args: &[&std::ffi::OsStr],
@@ -52,7 +52,19 @@ fn spawn(
         cmd.env("RAYON_NUM_THREADS", t.to_string());
     }
     if let Some(log) = log {
-        let f = std::fs::File::create(log)?;
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(log)?;
+        writeln!(
+            f,
+            "\n== drape {} ({} threads, started by drape reproduce)",
+            args.iter()
+                .map(|a| a.to_string_lossy())
+                .collect::<Vec<_>>()
+                .join(" "),
+            threads.map_or("all".into(), |t| t.to_string())
+        )?;
         cmd.stdout(f.try_clone()?).stderr(f);
     }
     Ok(cmd.args(args).spawn()?)
@@ -88,24 +100,37 @@ fn last_step(run: &Path) -> String {
         .unwrap_or_else(|| "starting".into())
 }
 
-/// What is running now, for the heartbeat.
-#[derive(Default)]
-struct Now {
-    phase: Option<Instant>,
-    stages: BTreeMap<String, Instant>,
+/// The last `n` lines of a file (for a failed child's log).
+fn tail(path: &Path, n: usize) -> String {
+    let t = std::fs::read_to_string(path).unwrap_or_default();
+    let lines: Vec<&str> = t.lines().collect();
+    lines[lines.len().saturating_sub(n)..].join("\n")
 }
 
-impl Now {
-    fn running(&self) -> Running {
-        Running {
-            machine: self.phase.map_or(0.0, |t| t.elapsed().as_secs_f64()),
-            stages: self
-                .stages
-                .iter()
-                .map(|(k, t)| (k.clone(), t.elapsed().as_secs_f64()))
-                .collect(),
+/// Sets the flag when dropped, also on an early return or a panic.
+struct SetOnDrop<'a>(&'a AtomicBool);
+
+impl Drop for SetOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Training children; any still running when this is dropped (an error in this process)
+/// are killed, so none trains on unsupervised.
+struct Children<'p>(Vec<(&'p PlanRun, Child)>);
+
+impl Drop for Children<'_> {
+    fn drop(&mut self) {
+        for (_, c) in &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
         }
     }
+}
+
+fn lock(clock: &Mutex<Clock>) -> std::sync::MutexGuard<'_, Clock> {
+    clock.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Runs `drape reproduce`.
@@ -118,48 +143,45 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     std::fs::create_dir_all(&out)?;
     let ledger_path = out.join("stages.json");
     let mut ledger = Ledger::load(&ledger_path)?;
-    // Stages that a killed session left running: their time so far, kept by a heartbeat.
+    // An earlier version kept running stages' time in a heartbeat file: fold it in once.
     let running_path = out.join("stages.running.json");
     if let Ok(b) = std::fs::read(&running_path) {
-        // (An older heartbeat held one stage as [name, seconds].)
-        let r = serde_json::from_slice::<Running>(&b).ok().or_else(|| {
-            serde_json::from_slice::<(String, f64)>(&b)
-                .ok()
-                .map(|(name, s)| Running {
-                    machine: s,
-                    stages: [(name, s)].into(),
-                })
-        });
-        if let Some(r) = r {
+        if let Some(r) = Running::parse(&b) {
             ledger.absorb(&r);
             ledger.save(&ledger_path)?;
         }
         std::fs::remove_file(&running_path)?;
     }
-    let now = Mutex::new(Now::default());
+    let clock = Mutex::new(Clock::new(ledger, &ledger_path));
     let stop = AtomicBool::new(false);
     let r = std::thread::scope(|s| {
-        // Heartbeat: what runs and for how long, to stages.running.json every 30 s.
+        // Heartbeat: every 30 s the running stages' time goes into stages.json.
         s.spawn(|| {
-            while !stop.load(Ordering::Relaxed) {
-                let r = now.lock().expect("heartbeat").running();
-                if r.machine > 0.0 {
-                    let beat = serde_json::to_vec(&r).expect("json");
-                    let _ = dataset::generate::write_atomic(&running_path, &beat);
-                }
+            let mut warned = false;
+            loop {
                 for _ in 0..30 {
                     if stop.load(Ordering::Relaxed) {
-                        break;
+                        return;
                     }
                     std::thread::sleep(std::time::Duration::from_secs(1));
                 }
+                if let Err(e) = lock(&clock).credit() {
+                    if !warned {
+                        eprintln!("warning: cannot save the ledger: {e}");
+                        warned = true;
+                    }
+                }
             }
         });
-        let r = stages(&args, ctx, &plan, &out, &mut ledger, &now);
-        stop.store(true, Ordering::Relaxed);
-        r
+        let _stop = SetOnDrop(&stop);
+        if args.report_only {
+            Ok(())
+        } else {
+            stages(ctx, &plan, &out, &clock)
+        }
     });
-    let _ = std::fs::remove_file(&running_path);
+    let ledger = clock.into_inner().unwrap_or_else(|e| e.into_inner()).ledger;
+    ledger.save(&ledger_path)?;
     r?;
     let written = eval::repro::write_report(&plan, &args.plan, &out, &ledger, &args.docs)?;
     for f in written {
@@ -170,24 +192,13 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
 
 /// Runs the plan's unfinished stages: generation, training (`parallel_runs` at once),
 /// evaluation.
-fn stages(
-    args: &ReproduceArgs,
-    ctx: &Context,
-    plan: &Plan,
-    out: &Path,
-    ledger: &mut Ledger,
-    now: &Mutex<Now>,
-) -> anyhow::Result<()> {
-    if args.report_only {
-        return Ok(());
-    }
-    let ledger_path = out.join("stages.json");
+fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
     let data_dir = |key: &str| out.join("data").join(key);
     let run_dir = |key: &str| out.join("runs").join(key);
     let eval_dir = |key: &str| out.join("eval").join(key);
     let speed_file = |key: &str| out.join("speedup").join(format!("{key}.json"));
-    let over_budget = |ledger: &Ledger, extra: f64, name: &str| -> anyhow::Result<()> {
-        let spent = ledger.hours() + extra / 3600.0;
+    let over_budget = |name: &str| -> anyhow::Result<()> {
+        let spent = lock(clock).hours();
         if spent >= plan.budget_hours {
             anyhow::bail!(
                 "the plan's budget of {} machine hours is spent ({spent:.2} h measured); stage {name} not run",
@@ -198,41 +209,29 @@ fn stages(
     };
 
     // One stage on its own: skip if done, stop if over budget, time it into the ledger.
-    let stage = |ledger: &mut Ledger,
-                 name: &str,
+    let stage = |name: &str,
                  done: &dyn Fn() -> bool,
                  work: &mut dyn FnMut() -> anyhow::Result<()>|
      -> anyhow::Result<()> {
         if done() {
-            ledger.done.insert(name.to_string(), true);
+            lock(clock).ledger.done.insert(name.to_string(), true);
             return Ok(());
         }
-        over_budget(ledger, 0.0, name)?;
+        over_budget(name)?;
         println!(
             "== {name} ({:.2} of {} hours spent)",
-            ledger.hours(),
+            lock(clock).hours(),
             plan.budget_hours
         );
-        let t0 = Instant::now();
-        {
-            let mut n = now.lock().expect("heartbeat");
-            n.phase = Some(t0);
-            n.stages.insert(name.to_string(), t0);
-        }
+        lock(clock).start(name)?;
         let r = work();
-        *now.lock().expect("heartbeat") = Now::default();
-        let s = t0.elapsed().as_secs_f64();
-        *ledger.seconds.entry(name.to_string()).or_default() += s;
-        ledger.machine_seconds += s;
-        ledger.done.insert(name.to_string(), r.is_ok() && done());
-        ledger.save(&ledger_path)?;
+        lock(clock).end(name, r.is_ok() && done())?;
         r
     };
 
     for d in &plan.datasets {
         let dir = data_dir(&d.key);
         stage(
-            ledger,
             &format!("gen {}", d.key),
             &|| dir.join("manifest.json").exists(),
             &mut || {
@@ -255,127 +254,138 @@ fn stages(
     let parallel = plan.parallel_runs;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads = (parallel > 1).then(|| (cores / parallel).max(1));
-    let mut pending: Vec<&eval::repro::PlanRun> = Vec::new();
+    let log_of = |key: &str| out.join("logs").join(format!("train-{key}.log"));
+    let mut pending: Vec<&PlanRun> = Vec::new();
     for r in &plan.runs {
-        let name = format!("train {}", r.key);
         if finished_run(&run_dir(&r.key)) {
-            ledger.done.insert(name, true);
+            lock(clock)
+                .ledger
+                .done
+                .insert(format!("train {}", r.key), true);
         } else {
             pending.push(r);
         }
     }
-    if !pending.is_empty() {
+    if threads.is_some() && !pending.is_empty() {
         std::fs::create_dir_all(out.join("logs"))?;
-        let phase = Instant::now();
-        now.lock().expect("heartbeat").phase = Some(phase);
-        let mut running: Vec<(&eval::repro::PlanRun, Child, Instant)> = Vec::new();
-        let mut failure: Option<anyhow::Error> = None;
-        let mut status_at = Instant::now();
-        loop {
-            while failure.is_none() && running.len() < parallel {
-                let ready = pending
-                    .iter()
-                    .position(|r| r.init.as_ref().is_none_or(|i| finished_run(&run_dir(i))));
-                let Some(k) = ready else { break };
-                let r = pending.remove(k);
-                let name = format!("train {}", r.key);
-                if let Err(e) = over_budget(ledger, phase.elapsed().as_secs_f64(), &name) {
-                    failure = Some(e);
-                    break;
-                }
-                let (data, dir) = (data_dir(&r.data), run_dir(&r.key));
-                let mut a: Vec<&std::ffi::OsStr> = vec![
-                    "train".as_ref(),
-                    r.config.as_os_str(),
-                    "--data".as_ref(),
-                    data.as_os_str(),
-                    "-o".as_ref(),
-                    dir.as_os_str(),
-                ];
-                let init = r.init.as_ref().map(|k| run_dir(k));
-                if let Some(i) = &init {
-                    a.push("--init".as_ref());
-                    a.push(i.as_os_str());
-                }
-                let log = out.join("logs").join(format!("train-{}.log", r.key));
-                let spent = ledger.hours() + phase.elapsed().as_secs_f64() / 3600.0;
-                match threads {
-                    Some(t) => println!(
-                        "== {name} on {t} thread(s), log {} ({spent:.2} of {} hours spent)",
-                        log.display(),
-                        plan.budget_hours
-                    ),
-                    None => println!(
-                        "== {name} ({spent:.2} of {} hours spent)",
-                        plan.budget_hours
-                    ),
-                }
-                let log = threads.is_some().then_some(log.as_path());
-                match spawn(ctx, &a, threads, log) {
-                    Ok(c) => {
-                        let t = Instant::now();
-                        now.lock().expect("heartbeat").stages.insert(name, t);
-                        running.push((r, c, t));
-                    }
-                    Err(e) => failure = Some(e),
-                }
-            }
-            if running.is_empty() {
+    }
+    let mut running = Children(Vec::new());
+    let mut failures: Vec<String> = Vec::new();
+    let mut status_at = Instant::now();
+    loop {
+        while failures.is_empty() && running.0.len() < parallel {
+            let ready = pending
+                .iter()
+                .position(|r| r.init.as_ref().is_none_or(|i| finished_run(&run_dir(i))));
+            let Some(k) = ready else { break };
+            let r = pending.remove(k);
+            let name = format!("train {}", r.key);
+            if let Err(e) = over_budget(&name) {
+                failures.push(e.to_string());
                 break;
             }
-            std::thread::sleep(std::time::Duration::from_secs(1));
-            let mut k = 0;
-            while k < running.len() {
-                let Some(status) = running[k].1.try_wait()? else {
+            let (data, dir) = (data_dir(&r.data), run_dir(&r.key));
+            let mut a: Vec<&std::ffi::OsStr> = vec![
+                "train".as_ref(),
+                r.config.as_os_str(),
+                "--data".as_ref(),
+                data.as_os_str(),
+                "-o".as_ref(),
+                dir.as_os_str(),
+            ];
+            let init = r.init.as_ref().map(|k| run_dir(k));
+            if let Some(i) = &init {
+                a.push("--init".as_ref());
+                a.push(i.as_os_str());
+            }
+            let spent = lock(clock).hours();
+            let log = log_of(&r.key);
+            match threads {
+                Some(t) => println!(
+                    "== {name} on {t} thread(s), log {} ({spent:.2} of {} hours spent)",
+                    log.display(),
+                    plan.budget_hours
+                ),
+                None => println!(
+                    "== {name} ({spent:.2} of {} hours spent)",
+                    plan.budget_hours
+                ),
+            }
+            match spawn(ctx, &a, threads, threads.map(|_| log.as_path())) {
+                Ok(c) => {
+                    running.0.push((r, c));
+                    lock(clock).start(&name)?;
+                }
+                Err(e) => failures.push(format!("{name} did not start: {e}")),
+            }
+        }
+        if running.0.is_empty() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_secs(1));
+        let mut k = 0;
+        while k < running.0.len() {
+            let status = match running.0[k].1.try_wait() {
+                Ok(None) => {
                     k += 1;
                     continue;
-                };
-                let (r, _, t) = running.remove(k);
-                let name = format!("train {}", r.key);
-                now.lock().expect("heartbeat").stages.remove(&name);
-                let s = t.elapsed().as_secs_f64();
-                *ledger.seconds.entry(name.clone()).or_default() += s;
-                let done = finished_run(&run_dir(&r.key));
-                ledger.done.insert(name.clone(), done);
-                ledger.save(&ledger_path)?;
+                }
+                Ok(Some(status)) => Ok(status),
+                Err(e) => Err(e),
+            };
+            let (r, _) = running.0.remove(k);
+            let name = format!("train {}", r.key);
+            let done = finished_run(&run_dir(&r.key));
+            lock(clock).end(&name, done)?;
+            let hours = lock(clock).stage_hours(&name);
+            let failure = match status {
+                Ok(s) if s.success() && done => None,
+                Ok(s) if s.success() => Some(format!(
+                    "{name} stopped at its wall-clock cap before its last epoch; run the same command again to continue it"
+                )),
+                Ok(s) => Some(format!(
+                    "{name} failed ({s}); fix the cause and run the same command again to resume"
+                )),
+                Err(e) => Some(format!("{name}: cannot wait for its process: {e}")),
+            };
+            match failure {
+                None => println!("== {name}: finished ({hours:.2} h in all)"),
+                Some(f) => {
+                    println!("== {f}");
+                    if threads.is_some() {
+                        let log = log_of(&r.key);
+                        println!("   end of {}:\n{}", log.display(), tail(&log, 10));
+                    }
+                    if !running.0.is_empty() {
+                        println!(
+                            "   waiting for the {} run(s) still training",
+                            running.0.len()
+                        );
+                    }
+                    failures.push(f);
+                }
+            }
+        }
+        if threads.is_some() && status_at.elapsed().as_secs() >= 600 {
+            status_at = Instant::now();
+            for (r, _) in &running.0 {
                 println!(
-                    "== {name}: {} after {:.2} h",
-                    if done { "finished" } else { "stopped" },
-                    s / 3600.0
+                    "   train {}: {:.2} h, {}",
+                    r.key,
+                    lock(clock).stage_hours(&format!("train {}", r.key)),
+                    last_step(&run_dir(&r.key))
                 );
-                if failure.is_none() && !status.success() {
-                    failure = Some(anyhow::anyhow!(
-                        "stage {name} failed ({status}; log in {}); fix the cause and run the same command again to resume",
-                        out.join("logs").display()
-                    ));
-                } else if failure.is_none() && !done {
-                    failure = Some(anyhow::anyhow!(
-                        "{name} stopped at its wall-clock cap before its last epoch; run the same command again to continue it"
-                    ));
-                }
-            }
-            if threads.is_some() && status_at.elapsed().as_secs() >= 600 {
-                status_at = Instant::now();
-                for (r, _, t) in &running {
-                    println!(
-                        "   train {}: {:.2} h, {}",
-                        r.key,
-                        t.elapsed().as_secs_f64() / 3600.0,
-                        last_step(&run_dir(&r.key))
-                    );
-                }
             }
         }
-        ledger.machine_seconds += phase.elapsed().as_secs_f64();
-        *now.lock().expect("heartbeat") = Now::default();
-        ledger.save(&ledger_path)?;
-        if let Some(e) = failure {
-            return Err(e);
-        }
+    }
+    if !failures.is_empty() {
+        anyhow::bail!("{}", failures.join("\n"));
+    }
+    if let Some(r) = pending.first() {
+        anyhow::bail!("train {} never became ready to start", r.key);
     }
 
     stage(
-        ledger,
         "eval",
         &|| {
             plan.runs
