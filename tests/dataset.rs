@@ -295,3 +295,76 @@ fn python_reads_the_shards_rust_wrote() {
         }
     }
 }
+
+/// A dataset whose poses come from a folder of BVH files: every sample names its file and
+/// frame, and its pose is that frame retargeted to the sample's body.
+#[test]
+fn poses_come_from_a_folder_of_bvh_files() {
+    use glam::Vec3;
+    use sim::body::bvh::{Motion, write_cmu};
+    use sim::body::{BodyModel, ShapeParams};
+    let t = tempfile::tempdir().unwrap();
+    let motions = t.path().join("motions");
+    std::fs::create_dir_all(&motions).unwrap();
+    let model = BodyModel::load_default().unwrap();
+    let body = model.shape(&ShapeParams::default()).unwrap();
+    let stand = Vec3::new(0.0, write_cmu(&body, &[(Vec3::ZERO, vec![])]).1, 0.0);
+    // Arms lowered from the T-pose by 60 and 45 degrees; then a bent left elbow.
+    let arms = |deg: f32| vec![("LeftArm", [-deg, 0.0, 0.0]), ("RightArm", [deg, 0.0, 0.0])];
+    let a = write_cmu(&body, &[(stand, arms(60.0)), (stand, arms(45.0))]).0;
+    let mut elbow = arms(60.0);
+    elbow.push(("LeftForeArm", [0.0, -60.0, 0.0]));
+    let b = write_cmu(&body, &[(stand, elbow)]).0;
+    std::fs::write(motions.join("a.bvh"), a).unwrap();
+    std::fs::write(motions.join("b.BVH"), b).unwrap();
+    std::fs::write(motions.join("notes.txt"), "not a motion").unwrap();
+    let tiny = std::fs::read_to_string("configs/datasets/tiny.toml").unwrap();
+    let cfg = t.path().join("bvh.toml");
+    std::fs::write(
+        &cfg,
+        format!("{tiny}\n[poses]\nsource = \"bvh\"\ndir = \"motions\"\n"),
+    )
+    .unwrap();
+    let out = t.path().join("data");
+    let (ok, text) = run(drape().arg("gen").arg(&cfg).arg("-o").arg(&out));
+    assert!(ok, "{text}");
+    let data = Dataset::open(&out).unwrap();
+    let mut files = std::collections::BTreeSet::new();
+    let mut checked = 0;
+    for split in [Split::Train, Split::Val, Split::Test] {
+        for s in data.samples(split) {
+            let s = s.unwrap();
+            assert_eq!(s.record.family, "bvh");
+            let (file, frame) = s.record.pose_source.split_once(" frame ").unwrap();
+            files.insert(file.to_string());
+            let motion = Motion::load(&motions.join(file)).unwrap();
+            let shaped = model.shape(&ShapeParams::from_named(s.row.shape)).unwrap();
+            let pose = motion.retarget(&shaped, frame.parse().unwrap()).unwrap();
+            for (q, r) in s.row.pose.iter().zip(&pose.rotations) {
+                assert!(q.dot(*r).abs() > 1.0 - 1e-6, "{q} vs {r}");
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked >= 6, "{checked} samples: {text}");
+    // Both files were drawn from; the text file was not read as a motion.
+    assert_eq!(
+        files.into_iter().collect::<Vec<_>>(),
+        ["a.bvh", "b.BVH"],
+        "{text}"
+    );
+    // An empty folder is refused with its name.
+    let empty = t.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    std::fs::write(
+        &cfg,
+        format!("{tiny}\n[poses]\nsource = \"bvh\"\ndir = \"empty\"\n"),
+    )
+    .unwrap();
+    let (ok, text) = run(drape()
+        .arg("gen")
+        .arg(&cfg)
+        .arg("-o")
+        .arg(t.path().join("o")));
+    assert!(!ok && text.contains("no .bvh files"), "{text}");
+}

@@ -1,113 +1,9 @@
 //! CMU BVH: a file written here, with the CMU hierarchy and bone names, goes through the
 //! loader and poses the body as expected.
 
-use std::fmt::Write as _;
-
 use glam::{Quat, Vec3};
-use sim::body::bvh::Motion;
+use sim::body::bvh::{CMU_UNIT, Motion, write_cmu};
 use sim::body::{BodyModel, ShapeParams, ShapedBody};
-
-/// CMU's BVH unit is about 5.6444 cm; writing the file at that scale checks that the
-/// loader does not care.
-const CMU_UNIT: f32 = 0.056_444;
-
-/// BVH name of a rig bone.
-fn bvh_name(rig: &str) -> &str {
-    match rig {
-        "LeftHandFinger1" => "LeftHandIndex1",
-        "RightHandFinger1" => "RightHandIndex1",
-        other => other,
-    }
-}
-
-/// One frame: root position (BVH units) and `(bone, [z, y, x] degrees)` rotations.
-type Frame<'a> = (Vec3, Vec<(&'a str, [f32; 3])>);
-
-/// A BVH file whose rest pose is the rig's T-pose on `body`, with the given frames
-/// (`(bone, [z, y, x] degrees)` rotations plus the root position) in CMU channel order.
-fn write_bvh(body: &ShapedBody<'_>, frames: &[Frame<'_>]) -> (String, f32) {
-    let m = body.model;
-    let posed = body.pose(&m.t_pose);
-    let head = |b: usize| body.bone_ends(&posed, b).0 / CMU_UNIT;
-    let tail = |b: usize| body.bone_ends(&posed, b).1 / CMU_UNIT;
-    let bones = &m.skeleton.bones;
-    let mut text = String::from("HIERARCHY\n");
-    fn emit(
-        text: &mut String,
-        b: usize,
-        depth: usize,
-        bones: &[sim::body::skeleton::Bone],
-        head: &dyn Fn(usize) -> Vec3,
-        tail: &dyn Fn(usize) -> Vec3,
-    ) {
-        let pad = "  ".repeat(depth);
-        let offset = match bones[b].parent {
-            Some(p) => head(b) - head(p),
-            None => Vec3::ZERO,
-        };
-        let kind = if depth == 0 { "ROOT" } else { "JOINT" };
-        let _ = writeln!(text, "{pad}{kind} {}\n{pad}{{", bvh_name(&bones[b].name));
-        let _ = writeln!(
-            text,
-            "{pad}  OFFSET {:.6} {:.6} {:.6}",
-            offset.x, offset.y, offset.z
-        );
-        if depth == 0 {
-            let _ = writeln!(
-                text,
-                "{pad}  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation"
-            );
-        } else {
-            let _ = writeln!(text, "{pad}  CHANNELS 3 Zrotation Yrotation Xrotation");
-        }
-        let children: Vec<usize> = (0..bones.len())
-            .filter(|&c| bones[c].parent == Some(b))
-            .collect();
-        for c in &children {
-            emit(text, *c, depth + 1, bones, head, tail);
-        }
-        if children.is_empty() {
-            let e = tail(b) - head(b);
-            let _ = writeln!(
-                text,
-                "{pad}  End Site\n{pad}  {{\n{pad}    OFFSET {:.6} {:.6} {:.6}\n{pad}  }}",
-                e.x, e.y, e.z
-            );
-        }
-        let _ = writeln!(text, "{pad}}}");
-    }
-    emit(&mut text, 0, 0, bones, &head, &tail);
-    // File order of the joints: depth first, as written.
-    let mut order = Vec::new();
-    fn walk(b: usize, bones: &[sim::body::skeleton::Bone], order: &mut Vec<usize>) {
-        order.push(b);
-        for c in (0..bones.len()).filter(|&c| bones[c].parent == Some(b)) {
-            walk(c, bones, order);
-        }
-    }
-    walk(0, bones, &mut order);
-    let _ = writeln!(
-        text,
-        "MOTION\nFrames: {}\nFrame Time: 0.008333",
-        frames.len()
-    );
-    for (root, rotations) in frames {
-        let mut line = format!("{:.6} {:.6} {:.6}", root.x, root.y, root.z);
-        for &b in &order {
-            let r = rotations
-                .iter()
-                .find(|(n, _)| *n == bones[b].name)
-                .map_or([0.0; 3], |x| x.1);
-            let _ = write!(line, " {} {} {}", r[0], r[1], r[2]);
-        }
-        let _ = writeln!(text, "{line}");
-    }
-    // Height of the hips above the lowest point of the BVH skeleton.
-    let lowest = (0..bones.len())
-        .map(|b| head(b).y.min(tail(b).y))
-        .fold(f32::MAX, f32::min);
-    (text, head(0).y - lowest)
-}
 
 fn bone_dir(body: &ShapedBody<'_>, posed: &sim::body::PosedBody, name: &str) -> Vec3 {
     let (h, t) = body.bone_ends(posed, body.model.skeleton.index(name).unwrap());
@@ -124,7 +20,7 @@ fn bvh_written_here_poses_the_body_as_expected() {
             ..Default::default()
         })
         .unwrap();
-    let probe = write_bvh(&body, &[(Vec3::ZERO, vec![])]).1;
+    let probe = write_cmu(&body, &[(Vec3::ZERO, vec![])]).1;
     let frames = vec![
         // 0: the BVH rest pose, standing.
         (Vec3::new(0.0, probe, 0.0), vec![]),
@@ -139,7 +35,7 @@ fn bvh_written_here_poses_the_body_as_expected() {
             vec![("Hips", [0.0, 90.0, 0.0])],
         ),
     ];
-    let (text, _) = write_bvh(&body, &frames);
+    let (text, _) = write_cmu(&body, &frames);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("test.bvh");
     std::fs::write(&path, &text).unwrap();
@@ -215,10 +111,10 @@ fn channel_order_follows_the_file() {
     // independently of drape's code.
     let model = BodyModel::load_default().unwrap();
     let body = model.shape(&ShapeParams::default()).unwrap();
-    let probe = write_bvh(&body, &[(Vec3::ZERO, vec![])]).1;
+    let probe = write_cmu(&body, &[(Vec3::ZERO, vec![])]).1;
     let (z, y, x) = (30.0f32, 20.0f32, 40.0f32);
     let frame = (Vec3::new(0.0, probe, 0.0), vec![("LeftArm", [z, y, x])]);
-    let (text, _) = write_bvh(&body, &[frame]);
+    let (text, _) = write_cmu(&body, &[frame]);
     let motion = Motion::parse(&text, "order.bvh".as_ref()).unwrap();
     let posed = body.pose(&motion.retarget(&body, 0).unwrap());
     let t_pose = body.pose(&model.t_pose);
@@ -282,7 +178,7 @@ fn malformed_bvh_files_are_rejected_with_a_line_number() {
 fn frame_out_of_range_and_foreign_skeletons_are_rejected() {
     let model = BodyModel::load_default().unwrap();
     let body = model.shape(&ShapeParams::default()).unwrap();
-    let (text, h) = write_bvh(&body, &[(Vec3::ZERO, vec![])]);
+    let (text, h) = write_cmu(&body, &[(Vec3::ZERO, vec![])]);
     let motion = Motion::parse(
         &text.replace("0.000000 0.000000 0.000000 0", &format!("0 {h} 0 0")),
         "x.bvh".as_ref(),

@@ -71,6 +71,110 @@ const ALIASES: [(&str, &str); 2] = [
     ("RightHandFinger1", "RightHandIndex1"),
 ];
 
+/// CMU's BVH length unit, about 5.6444 cm.
+pub const CMU_UNIT: f32 = 0.056_444;
+
+/// BVH name of a rig bone.
+fn bvh_name(rig: &str) -> &str {
+    ALIASES
+        .iter()
+        .find(|(r, _)| *r == rig)
+        .map_or(rig, |(_, b)| b)
+}
+
+/// One frame to write: the root position (BVH units) and `(rig bone, [z, y, x] degrees)`
+/// rotations; bones left out are at zero.
+pub type CmuFrame<'a> = (Vec3, Vec<(&'a str, [f32; 3])>);
+
+/// Writes a BVH file in CMU's layout (bone names, ZYX channels, CMU units) whose rest pose
+/// is the rig's T-pose on `body`, with the given frames: a way to author motions for
+/// `drape gen`'s BVH pose source and for tests. Also returns the height of the hips above
+/// the skeleton's lowest point (BVH units), the root height of a standing frame.
+pub fn write_cmu(body: &ShapedBody<'_>, frames: &[CmuFrame<'_>]) -> (String, f32) {
+    use std::fmt::Write as _;
+    let m = body.model;
+    let posed = body.pose(&m.t_pose);
+    let head = |b: usize| body.bone_ends(&posed, b).0 / CMU_UNIT;
+    let tail = |b: usize| body.bone_ends(&posed, b).1 / CMU_UNIT;
+    let bones = &m.skeleton.bones;
+    let mut text = String::from("HIERARCHY\n");
+    fn emit(
+        text: &mut String,
+        b: usize,
+        depth: usize,
+        bones: &[super::skeleton::Bone],
+        head: &dyn Fn(usize) -> Vec3,
+        tail: &dyn Fn(usize) -> Vec3,
+    ) {
+        let pad = "  ".repeat(depth);
+        let offset = match bones[b].parent {
+            Some(p) => head(b) - head(p),
+            None => Vec3::ZERO,
+        };
+        let kind = if depth == 0 { "ROOT" } else { "JOINT" };
+        let _ = writeln!(text, "{pad}{kind} {}\n{pad}{{", bvh_name(&bones[b].name));
+        let _ = writeln!(
+            text,
+            "{pad}  OFFSET {:.6} {:.6} {:.6}",
+            offset.x, offset.y, offset.z
+        );
+        if depth == 0 {
+            let _ = writeln!(
+                text,
+                "{pad}  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation"
+            );
+        } else {
+            let _ = writeln!(text, "{pad}  CHANNELS 3 Zrotation Yrotation Xrotation");
+        }
+        let children: Vec<usize> = (0..bones.len())
+            .filter(|&c| bones[c].parent == Some(b))
+            .collect();
+        for c in &children {
+            emit(text, *c, depth + 1, bones, head, tail);
+        }
+        if children.is_empty() {
+            let e = tail(b) - head(b);
+            let _ = writeln!(
+                text,
+                "{pad}  End Site\n{pad}  {{\n{pad}    OFFSET {:.6} {:.6} {:.6}\n{pad}  }}",
+                e.x, e.y, e.z
+            );
+        }
+        let _ = writeln!(text, "{pad}}}");
+    }
+    emit(&mut text, 0, 0, bones, &head, &tail);
+    // File order of the joints: depth first, as written.
+    let mut order = Vec::new();
+    fn walk(b: usize, bones: &[super::skeleton::Bone], order: &mut Vec<usize>) {
+        order.push(b);
+        for c in (0..bones.len()).filter(|&c| bones[c].parent == Some(b)) {
+            walk(c, bones, order);
+        }
+    }
+    walk(0, bones, &mut order);
+    let _ = writeln!(
+        text,
+        "MOTION\nFrames: {}\nFrame Time: 0.008333",
+        frames.len()
+    );
+    for (root, rotations) in frames {
+        let mut line = format!("{:.6} {:.6} {:.6}", root.x, root.y, root.z);
+        for &b in &order {
+            let r = rotations
+                .iter()
+                .find(|(n, _)| *n == bones[b].name)
+                .map_or([0.0; 3], |x| x.1);
+            let _ = write!(line, " {} {} {}", r[0], r[1], r[2]);
+        }
+        let _ = writeln!(text, "{line}");
+    }
+    // Height of the hips above the lowest point of the BVH skeleton.
+    let lowest = (0..bones.len())
+        .map(|b| head(b).y.min(tail(b).y))
+        .fold(f32::MAX, f32::min);
+    (text, head(0).y - lowest)
+}
+
 struct Tokens<'a> {
     items: Vec<(usize, &'a str)>,
     pos: usize,
