@@ -232,6 +232,10 @@ fn bad_configs_are_refused_before_any_work() {
         .args(["gen", "no-such-config", "-o"])
         .arg(t.path().join("o")));
     assert!(!ok && text.contains("built-in configs: tiny"), "{text}");
+    let (ok, text) = run(drape()
+        .args(["gen", "tiny", "--max-failure-rate", "1.5", "-o"])
+        .arg(t.path().join("o")));
+    assert!(!ok && text.contains("--max-failure-rate 1.5"), "{text}");
 }
 
 /// Python reads the shards with numpy through the safetensors package and sees what Rust

@@ -196,4 +196,16 @@ samples = 1
     .unwrap();
     let (ok, text) = reproduce("bad.toml");
     assert!(!ok && text.contains("nothing"), "{text}");
+    // So is a failure gate outside [0, 1].
+    std::fs::write(
+        dir.join("gate.toml"),
+        plan(1.0).replacen(
+            "planned_hours = 0.01",
+            "planned_hours = 0.01\nmax_failure_rate = 2.0",
+            1,
+        ),
+    )
+    .unwrap();
+    let (ok, text) = reproduce("gate.toml");
+    assert!(!ok && text.contains("max_failure_rate"), "{text}");
 }

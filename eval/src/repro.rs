@@ -20,6 +20,10 @@ pub struct PlanDataset {
     pub config: String,
     /// Planned machine hours of its generation.
     pub planned_hours: f64,
+    /// Share of failed drapes accepted (`drape gen --max-failure-rate`), if not the
+    /// config's own gate; the plan says why.
+    #[serde(default)]
+    pub max_failure_rate: Option<f64>,
 }
 
 /// A training run of the plan.
@@ -107,6 +111,14 @@ impl Plan {
             }
             if !(d.planned_hours >= 0.0) {
                 return Err(format!("dataset {}: planned_hours must be >= 0", d.key));
+            }
+            if d.max_failure_rate
+                .is_some_and(|r| !(0.0..=1.0).contains(&r))
+            {
+                return Err(format!(
+                    "dataset {}: max_failure_rate must be in [0, 1]",
+                    d.key
+                ));
             }
         }
         let mut runs = std::collections::BTreeSet::new();

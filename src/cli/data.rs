@@ -27,6 +27,11 @@ pub struct GenArgs {
     /// Threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Accept up to this share of failed drapes before exiting non-zero, instead of the
+    /// config's `max_failure_rate` (the data and the config's identity are unchanged; for
+    /// accepting a measured rate without regenerating, e.g. `drape reproduce`'s plans).
+    #[arg(long, value_name = "SHARE")]
+    pub max_failure_rate: Option<f64>,
 }
 
 /// `drape data`.
@@ -82,6 +87,11 @@ fn parse_part(s: &str) -> anyhow::Result<(u32, u32)> {
 /// Runs `drape gen`.
 pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
     let config = DatasetConfig::load(&args.config)?;
+    if let Some(r) = args.max_failure_rate
+        && !(0.0..=1.0).contains(&r)
+    {
+        anyhow::bail!("--max-failure-rate {r}: a share from 0 to 1");
+    }
     let (part, parts) = match &args.shard {
         Some(s) => parse_part(s)?,
         None => (0, 1),
@@ -186,11 +196,15 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
     for (r, k) in m.failure_reasons() {
         println!("  reason: {r}: {k}");
     }
-    if t.rate() > config.max_failure_rate {
+    let (gate, whose) = match args.max_failure_rate {
+        Some(r) => (r, "--max-failure-rate"),
+        None => (config.max_failure_rate, "the config's max_failure_rate"),
+    };
+    if t.rate() > gate {
         anyhow::bail!(
-            "{:.1}% of drapes failed, above the config's max_failure_rate of {:.1}%",
+            "{:.1}% of drapes failed, above {whose} of {:.1}%",
             100.0 * t.rate(),
-            100.0 * config.max_failure_rate
+            100.0 * gate
         );
     }
     Ok(())

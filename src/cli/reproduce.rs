@@ -208,12 +208,14 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         Ok(())
     };
 
-    // One stage on its own: skip if done, stop if over budget, time it into the ledger.
+    // One stage on its own: skip it if `skip` says it is done, stop if over budget, time it into the ledger; it is done if `work` succeeds
+    // and `finished` finds its output.
     let stage = |name: &str,
-                 done: &dyn Fn() -> bool,
+                 skip: &dyn Fn() -> bool,
+                 finished: &dyn Fn() -> bool,
                  work: &mut dyn FnMut() -> anyhow::Result<()>|
      -> anyhow::Result<()> {
-        if done() {
+        if skip() {
             lock(clock).ledger.done.insert(name.to_string(), true);
             return Ok(());
         }
@@ -225,28 +227,33 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         );
         lock(clock).start(name)?;
         let r = work();
-        lock(clock).end(name, r.is_ok() && done())?;
+        let done = r.is_ok() && finished();
+        lock(clock).end(name, done)?;
         r
     };
 
     for d in &plan.datasets {
         let dir = data_dir(&d.key);
-        stage(
-            &format!("gen {}", d.key),
-            &|| dir.join("manifest.json").exists(),
-            &mut || {
-                child(
-                    ctx,
-                    &format!("gen {}", d.key),
-                    &[
-                        "gen".as_ref(),
-                        d.config.as_ref(),
-                        "-o".as_ref(),
-                        dir.as_os_str(),
-                    ],
-                )
-            },
-        )?;
+        let gate = d.max_failure_rate.map(|r| r.to_string());
+        // Done once `drape gen` has exited successfully (recorded in the ledger): a
+        // manifest alone may belong to a dataset above its failure gate. Running gen on a
+        // finished dataset only checks it again.
+        let name = format!("gen {}", d.key);
+        let manifest = || dir.join("manifest.json").exists();
+        let passed = || lock(clock).ledger.done.get(&name) == Some(&true);
+        stage(&name, &passed, &manifest, &mut || {
+            let mut a: Vec<&std::ffi::OsStr> = vec![
+                "gen".as_ref(),
+                d.config.as_ref(),
+                "-o".as_ref(),
+                dir.as_os_str(),
+            ];
+            if let Some(g) = &gate {
+                a.push("--max-failure-rate".as_ref());
+                a.push(g.as_ref());
+            }
+            child(ctx, &format!("gen {}", d.key), &a)
+        })?;
     }
 
     // Training: up to `parallel_runs` children at once, a fine-tune once its start is
@@ -385,63 +392,60 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         anyhow::bail!("train {} never became ready to start", r.key);
     }
 
-    stage(
-        "eval",
-        &|| {
-            plan.runs
-                .iter()
-                .all(|r| eval_dir(&r.key).join("metrics.json").exists())
-                && plan.speedup.runs.iter().all(|k| speed_file(k).exists())
-        },
-        &mut || {
-            for r in &plan.runs {
-                let e = eval_dir(&r.key);
-                if e.join("metrics.json").exists() {
-                    continue;
-                }
-                let (rd, dd) = (run_dir(&r.key), data_dir(&r.data));
-                child(
-                    ctx,
-                    &format!("eval {}", r.key),
-                    &[
-                        "eval".as_ref(),
-                        "--model".as_ref(),
-                        rd.as_os_str(),
-                        "--data".as_ref(),
-                        dd.as_os_str(),
-                        "-o".as_ref(),
-                        e.as_os_str(),
-                    ],
-                )?;
+    let evaluated = || {
+        plan.runs
+            .iter()
+            .all(|r| eval_dir(&r.key).join("metrics.json").exists())
+            && plan.speedup.runs.iter().all(|k| speed_file(k).exists())
+    };
+    stage("eval", &evaluated, &evaluated, &mut || {
+        for r in &plan.runs {
+            let e = eval_dir(&r.key);
+            if e.join("metrics.json").exists() {
+                continue;
             }
-            std::fs::create_dir_all(out.join("speedup"))?;
-            for k in &plan.speedup.runs {
-                let f = speed_file(k);
-                if f.exists() {
-                    continue;
-                }
-                let r = plan.runs.iter().find(|r| &r.key == k).expect("validated");
-                let (rd, dd) = (run_dir(k), data_dir(&r.data));
-                let samples = plan.speedup.samples.to_string();
-                child(
-                    ctx,
-                    &format!("speedup {k}"),
-                    &[
-                        "bench".as_ref(),
-                        "speedup".as_ref(),
-                        "--model".as_ref(),
-                        rd.as_os_str(),
-                        "--data".as_ref(),
-                        dd.as_os_str(),
-                        "--samples".as_ref(),
-                        samples.as_ref(),
-                        "--json".as_ref(),
-                        f.as_os_str(),
-                    ],
-                )?;
+            let (rd, dd) = (run_dir(&r.key), data_dir(&r.data));
+            child(
+                ctx,
+                &format!("eval {}", r.key),
+                &[
+                    "eval".as_ref(),
+                    "--model".as_ref(),
+                    rd.as_os_str(),
+                    "--data".as_ref(),
+                    dd.as_os_str(),
+                    "-o".as_ref(),
+                    e.as_os_str(),
+                ],
+            )?;
+        }
+        std::fs::create_dir_all(out.join("speedup"))?;
+        for k in &plan.speedup.runs {
+            let f = speed_file(k);
+            if f.exists() {
+                continue;
             }
-            Ok(())
-        },
-    )?;
+            let r = plan.runs.iter().find(|r| &r.key == k).expect("validated");
+            let (rd, dd) = (run_dir(k), data_dir(&r.data));
+            let samples = plan.speedup.samples.to_string();
+            child(
+                ctx,
+                &format!("speedup {k}"),
+                &[
+                    "bench".as_ref(),
+                    "speedup".as_ref(),
+                    "--model".as_ref(),
+                    rd.as_os_str(),
+                    "--data".as_ref(),
+                    dd.as_os_str(),
+                    "--samples".as_ref(),
+                    samples.as_ref(),
+                    "--json".as_ref(),
+                    f.as_os_str(),
+                ],
+            )?;
+        }
+        Ok(())
+    })?;
     Ok(())
 }
