@@ -165,6 +165,13 @@ impl Plan {
         v
     }
 
+    /// Threads of each training child when runs train side by side: this machine's cores
+    /// shared among `parallel_runs` (None for one run at a time, which uses them all).
+    pub fn run_threads(&self) -> Option<usize> {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        (self.parallel_runs > 1).then(|| (cores / self.parallel_runs).max(1))
+    }
+
     /// Planned machine hours of the whole plan: generation and evaluation, plus the runs'
     /// hours shared among `parallel_runs` at once.
     pub fn planned_machine_hours(&self) -> f64 {
@@ -944,10 +951,9 @@ pub fn write_report(
     )
     .unwrap();
     for run in &plan.runs {
-        let st = std::fs::read(out.join("runs").join(&run.key).join("state.json"))
+        let st = learn::train::State::load(&out.join("runs").join(&run.key))
             .ok()
-            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
-        let g = |k: &str| st.as_ref().and_then(|s| s[k].as_f64());
+            .flatten();
         writeln!(
             w,
             "| {} | `{}`{} | {} | {} | {} |",
@@ -956,9 +962,9 @@ pub fn write_report(
             run.init
                 .as_ref()
                 .map_or(String::new(), |i| format!(" from `{i}`")),
-            fmt(g("epoch"), 0),
-            fmt(g("steps"), 0),
-            fmt(g("seconds").map(|s| s / 3600.0), 2)
+            fmt(st.as_ref().map(|s| s.epoch as f64), 0),
+            fmt(st.as_ref().map(|s| s.steps as f64), 0),
+            fmt(st.as_ref().map(|s| s.seconds / 3600.0), 2)
         )
         .unwrap();
     }
@@ -984,12 +990,11 @@ pub fn write_report(
         plan.budget_hours
     )
     .unwrap();
-    if plan.parallel_runs > 1 {
+    if let Some(t) = plan.run_threads() {
         writeln!(
             w,
-            "\n{} training runs at once, each on {} of the machine's threads: the stages' own hours add up to more than the machine's.",
+            "\n{} training runs at once, each on {t} of the machine's threads: the stages' own hours add up to more than the machine's.",
             plan.parallel_runs,
-            (std::thread::available_parallelism().map_or(1, |n| n.get()) / plan.parallel_runs).max(1)
         )
         .unwrap();
     }

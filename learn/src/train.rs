@@ -275,6 +275,13 @@ pub struct State {
     pub finished: bool,
 }
 
+impl State {
+    /// The state saved in run folder `run` (None before its first checkpoint).
+    pub fn load(run: &Path) -> Result<Option<Self>, LearnError> {
+        crate::run::read_json(&run.join("state.json"))
+    }
+}
+
 /// What the run folder records about its data and garment.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct RunInfo {
@@ -394,7 +401,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         curvature_scales: None,
     };
     crate::run::prepare_folder(&opts.run, config, &info)?;
-    let mut state: State = crate::run::read_json(&opts.run.join("state.json"))?.unwrap_or_default();
+    let mut state = State::load(&opts.run)?.unwrap_or_default();
     if state.finished {
         return Ok(state);
     }

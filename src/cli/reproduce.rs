@@ -82,11 +82,7 @@ fn child(ctx: &Context, stage: &str, args: &[&std::ffi::OsStr]) -> anyhow::Resul
 }
 
 fn finished_run(run: &Path) -> bool {
-    std::fs::read(run.join("state.json"))
-        .ok()
-        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .and_then(|v| v["finished"].as_bool())
-        .unwrap_or(false)
+    learn::train::State::load(run).is_ok_and(|s| s.is_some_and(|s| s.finished))
 }
 
 /// The last line of a run's `steps.csv` as "epoch E, step S" (for the status lines).
@@ -208,8 +204,8 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         Ok(())
     };
 
-    // One stage on its own: skip it if `skip` says it is done, stop if over budget, time it into the ledger; it is done if `work` succeeds
-    // and `finished` finds its output.
+    // One stage on its own: skip it if `skip` says it is done, stop if over budget, time
+    // it into the ledger; it is done if `work` succeeds and `finished` finds its output.
     let stage = |name: &str,
                  skip: &dyn Fn() -> bool,
                  finished: &dyn Fn() -> bool,
@@ -252,15 +248,14 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
                 a.push("--max-failure-rate".as_ref());
                 a.push(g.as_ref());
             }
-            child(ctx, &format!("gen {}", d.key), &a)
+            child(ctx, &name, &a)
         })?;
     }
 
     // Training: up to `parallel_runs` children at once, a fine-tune once its start is
     // finished. With more than one at once, each child's output goes to OUT/logs/.
     let parallel = plan.parallel_runs;
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let threads = (parallel > 1).then(|| (cores / parallel).max(1));
+    let threads = plan.run_threads();
     let log_of = |key: &str| out.join("logs").join(format!("train-{key}.log"));
     let mut pending: Vec<&PlanRun> = Vec::new();
     for r in &plan.runs {
