@@ -583,3 +583,28 @@ fn user_garments_are_imported_checked_and_usable() {
     assert_eq!(std::fs::read_dir(&user).unwrap().count(), before);
     assert!(!Path::new("/tmp/never.obj").exists());
 }
+
+/// A child of `drape reproduce` carries its parent's id in DRAPE_WATCH_PARENT and stops
+/// when its parent is no longer that process (the parent was killed); with its real
+/// parent's id it runs to the end.
+#[test]
+fn a_child_whose_reproduce_parent_is_gone_stops() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("body.obj");
+    let run = |watch: u32| {
+        Command::new(env!("CARGO_BIN_EXE_drape"))
+            .args(["body", "-o", obj.to_str().unwrap()])
+            .env("DRAPE_WATCH_PARENT", watch.to_string())
+            .output()
+            .expect("drape runs")
+    };
+    // Not this test process: as if the parent had died and the child been re-parented.
+    let o = run(std::process::id().wrapping_add(1));
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    assert!(stderr(&o).contains("is gone"), "{}", stderr(&o));
+    assert!(!obj.exists());
+    // This test process is the parent: the body is written.
+    let o = run(std::process::id());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(obj.exists());
+}

@@ -45,6 +45,8 @@ fn spawn(
     let exe = std::env::current_exe()?;
     let mut cmd = Command::new(exe);
     cmd.arg("--assets").arg(&ctx.assets);
+    // The child stops if this process dies (src/main.rs).
+    cmd.env("DRAPE_WATCH_PARENT", std::process::id().to_string());
     if let Some(p) = &ctx.pose_library {
         cmd.arg("--pose-library").arg(p);
     }
