@@ -39,7 +39,7 @@ fn watch_parent() {
 /// Keeps freed memory in the process instead of returning it to the system at once.
 /// Training allocates and frees tensors of tens of megabytes every step; with glibc's
 /// defaults each comes back from the kernel as fresh zeroed pages (page faults, memset),
-/// a third of a training step's time. Measured (docs/bench.md): GarNet-Local training
+/// about a quarter of a training step's time. Measured (docs/bench.md): GarNet-Local training
 /// at 1 thread, 4.2-4.7 samples/s with the defaults, 6.1-6.3 with these settings. Any
 /// `MALLOC_*_` variable in the environment (glibc's own tuning) turns this off.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]

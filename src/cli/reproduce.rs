@@ -191,21 +191,10 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
 /// Runs the plan's unfinished stages: generation, training (`parallel_runs` at once),
 /// evaluation.
 fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
-    let data_dir = |key: &str| out.join("data").join(key);
-    let run_dir = |key: &str| out.join("runs").join(key);
+    let data_dir = |key: &str| data_dir(out, key);
+    let run_dir = |key: &str| run_dir(out, key);
     let eval_dir = |key: &str| out.join("eval").join(key);
     let speed_file = |key: &str| out.join("speedup").join(format!("{key}.json"));
-    let over_budget = |name: &str| -> anyhow::Result<()> {
-        let spent = lock(clock).hours();
-        if spent >= plan.budget_hours {
-            anyhow::bail!(
-                "the plan's budget of {} machine hours is spent ({spent:.2} h measured); stage {name} not run",
-                plan.budget_hours
-            );
-        }
-        Ok(())
-    };
-
     // One stage on its own: skip it if `skip` says it is done, stop if over budget, time
     // it into the ledger; it is done if `work` succeeds and `finished` finds its output.
     let stage = |name: &str,
@@ -217,7 +206,7 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
             lock(clock).ledger.done.insert(name.to_string(), true);
             return Ok(());
         }
-        over_budget(name)?;
+        over_budget(plan, clock, name)?;
         println!(
             "== {name} ({:.2} of {} hours spent)",
             lock(clock).hours(),
@@ -254,8 +243,95 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         })?;
     }
 
-    // Training: up to `parallel_runs` children at once, a fine-tune once its start is
-    // finished. With more than one at once, each child's output goes to OUT/logs/.
+    train_runs(ctx, plan, out, clock)?;
+
+    let evaluated = || {
+        plan.runs
+            .iter()
+            .all(|r| eval_dir(&r.key).join("metrics.json").exists())
+            && plan.speedup.runs.iter().all(|k| speed_file(k).exists())
+    };
+    stage("eval", &evaluated, &evaluated, &mut || {
+        for r in &plan.runs {
+            let e = eval_dir(&r.key);
+            if e.join("metrics.json").exists() {
+                continue;
+            }
+            let (rd, dd) = (run_dir(&r.key), data_dir(&r.data));
+            child(
+                ctx,
+                &format!("eval {}", r.key),
+                &[
+                    "eval".as_ref(),
+                    "--model".as_ref(),
+                    rd.as_os_str(),
+                    "--data".as_ref(),
+                    dd.as_os_str(),
+                    "-o".as_ref(),
+                    e.as_os_str(),
+                ],
+            )?;
+        }
+        std::fs::create_dir_all(out.join("speedup"))?;
+        for k in &plan.speedup.runs {
+            let f = speed_file(k);
+            if f.exists() {
+                continue;
+            }
+            let r = plan.runs.iter().find(|r| &r.key == k).expect("validated");
+            let (rd, dd) = (run_dir(k), data_dir(&r.data));
+            let samples = plan.speedup.samples.to_string();
+            child(
+                ctx,
+                &format!("speedup {k}"),
+                &[
+                    "bench".as_ref(),
+                    "speedup".as_ref(),
+                    "--model".as_ref(),
+                    rd.as_os_str(),
+                    "--data".as_ref(),
+                    dd.as_os_str(),
+                    "--samples".as_ref(),
+                    samples.as_ref(),
+                    "--json".as_ref(),
+                    f.as_os_str(),
+                ],
+            )?;
+        }
+        Ok(())
+    })?;
+    Ok(())
+}
+
+/// The folder of dataset `key` in the working folder `out`.
+fn data_dir(out: &Path, key: &str) -> PathBuf {
+    out.join("data").join(key)
+}
+
+/// The folder of training run `key` in the working folder `out`.
+fn run_dir(out: &Path, key: &str) -> PathBuf {
+    out.join("runs").join(key)
+}
+
+/// Fails, naming the stage, once the plan's machine hours are spent.
+fn over_budget(plan: &Plan, clock: &Mutex<Clock>, name: &str) -> anyhow::Result<()> {
+    let spent = lock(clock).hours();
+    if spent >= plan.budget_hours {
+        anyhow::bail!(
+            "the plan's budget of {} machine hours is spent ({spent:.2} h measured); stage {name} not run",
+            plan.budget_hours
+        );
+    }
+    Ok(())
+}
+
+/// The training stages: up to `parallel_runs` children at once, a fine-tune once the run
+/// it starts from has finished. With more than one at once, each child's output goes to
+/// OUT/logs/. Returns once every run has finished, or fails naming the runs that did not
+/// (the others are left to finish first).
+fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
+    let data_dir = |key: &str| data_dir(out, key);
+    let run_dir = |key: &str| run_dir(out, key);
     let parallel = plan.parallel_runs;
     let threads = plan.run_threads();
     let log_of = |key: &str| out.join("logs").join(format!("train-{key}.log"));
@@ -284,7 +360,7 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
             let Some(k) = ready else { break };
             let r = pending.remove(k);
             let name = format!("train {}", r.key);
-            if let Err(e) = over_budget(&name) {
+            if let Err(e) = over_budget(plan, clock, &name) {
                 failures.push(e.to_string());
                 break;
             }
@@ -388,61 +464,5 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
     if let Some(r) = pending.first() {
         anyhow::bail!("train {} never became ready to start", r.key);
     }
-
-    let evaluated = || {
-        plan.runs
-            .iter()
-            .all(|r| eval_dir(&r.key).join("metrics.json").exists())
-            && plan.speedup.runs.iter().all(|k| speed_file(k).exists())
-    };
-    stage("eval", &evaluated, &evaluated, &mut || {
-        for r in &plan.runs {
-            let e = eval_dir(&r.key);
-            if e.join("metrics.json").exists() {
-                continue;
-            }
-            let (rd, dd) = (run_dir(&r.key), data_dir(&r.data));
-            child(
-                ctx,
-                &format!("eval {}", r.key),
-                &[
-                    "eval".as_ref(),
-                    "--model".as_ref(),
-                    rd.as_os_str(),
-                    "--data".as_ref(),
-                    dd.as_os_str(),
-                    "-o".as_ref(),
-                    e.as_os_str(),
-                ],
-            )?;
-        }
-        std::fs::create_dir_all(out.join("speedup"))?;
-        for k in &plan.speedup.runs {
-            let f = speed_file(k);
-            if f.exists() {
-                continue;
-            }
-            let r = plan.runs.iter().find(|r| &r.key == k).expect("validated");
-            let (rd, dd) = (run_dir(k), data_dir(&r.data));
-            let samples = plan.speedup.samples.to_string();
-            child(
-                ctx,
-                &format!("speedup {k}"),
-                &[
-                    "bench".as_ref(),
-                    "speedup".as_ref(),
-                    "--model".as_ref(),
-                    rd.as_os_str(),
-                    "--data".as_ref(),
-                    dd.as_os_str(),
-                    "--samples".as_ref(),
-                    samples.as_ref(),
-                    "--json".as_ref(),
-                    f.as_os_str(),
-                ],
-            )?;
-        }
-        Ok(())
-    })?;
     Ok(())
 }
