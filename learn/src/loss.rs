@@ -192,15 +192,24 @@ pub const RQ_SIZES: [usize; 3] = [8, 16, 32];
 pub fn rq_neighbourhoods(targets: &[&[Vec3]], k: usize, device: &Device) -> Tensor<1, Int> {
     let lists: Vec<Vec<u32>> = targets.iter().map(|g| knn(g, g, k)).collect();
     let refs: Vec<&[u32]> = lists.iter().map(|l| l.as_slice()).collect();
-    rq_rows(&refs, k, device)
+    let n = targets.first().map_or(0, |g| g.len());
+    rq_rows(&refs, n, k, device)
 }
 
-/// Per-sample neighbour lists (indices within each sample, `N * k` each, as
-/// `Prepared::rq`) as rows of the flattened `[B * N]`, `[B * N * k]`.
-pub fn rq_rows(lists: &[&[u32]], k: usize, device: &Device) -> Tensor<1, Int> {
+/// Per-sample neighbour lists (indices within each sample, `n * k` each, as
+/// `Prepared::rq`) as rows of the flattened `[B * n]`, `[B * n * k]`.
+///
+/// # Panics
+/// If a list is not `n * k` long (a sample without its ground truth's neighbourhoods).
+pub fn rq_rows(lists: &[&[u32]], n: usize, k: usize, device: &Device) -> Tensor<1, Int> {
     let mut rows = Vec::new();
     for (s, l) in lists.iter().enumerate() {
-        let base = (s * l.len() / k) as i64;
+        assert_eq!(
+            l.len(),
+            n * k,
+            "sample {s} of the batch carries no L_RQ neighbourhoods of its ground truth"
+        );
+        let base = (s * n) as i64;
         rows.extend(l.iter().map(|&j| base + i64::from(j)));
     }
     let len = rows.len();

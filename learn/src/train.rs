@@ -224,7 +224,8 @@ impl Setup {
         // found once per sample by the preprocessor).
         if let Some(kmax) = rq_kmax(w) {
             let lists: Vec<&[u32]> = samples.iter().map(|s| s.rq.as_slice()).collect();
-            let rows = loss::rq_rows(&lists, kmax, &self.device);
+            let n = pred.dims()[1];
+            let rows = loss::rq_rows(&lists, n, kmax, &self.device);
             let on = w.rq.map(|x| x > 0.0);
             let losses = loss::rayleigh_losses(pred.clone(), target.clone(), rows, kmax, on);
             for (k, l) in losses.into_iter().enumerate() {

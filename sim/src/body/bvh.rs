@@ -98,14 +98,18 @@ pub fn write_cmu(body: &ShapedBody<'_>, frames: &[CmuFrame<'_>]) -> (String, f32
     let tail = |b: usize| body.bone_ends(&posed, b).1 / CMU_UNIT;
     let bones = &m.skeleton.bones;
     let mut text = String::from("HIERARCHY\n");
+    // Writes joint `b` and its subtree, and appends the joints to `order` as written
+    // (depth first: the order of the motion lines' channels).
     fn emit(
         text: &mut String,
+        order: &mut Vec<usize>,
         b: usize,
         depth: usize,
         bones: &[super::skeleton::Bone],
         head: &dyn Fn(usize) -> Vec3,
         tail: &dyn Fn(usize) -> Vec3,
     ) {
+        order.push(b);
         let pad = "  ".repeat(depth);
         let offset = match bones[b].parent {
             Some(p) => head(b) - head(p),
@@ -130,7 +134,7 @@ pub fn write_cmu(body: &ShapedBody<'_>, frames: &[CmuFrame<'_>]) -> (String, f32
             .filter(|&c| bones[c].parent == Some(b))
             .collect();
         for c in &children {
-            emit(text, *c, depth + 1, bones, head, tail);
+            emit(text, order, *c, depth + 1, bones, head, tail);
         }
         if children.is_empty() {
             let e = tail(b) - head(b);
@@ -142,16 +146,8 @@ pub fn write_cmu(body: &ShapedBody<'_>, frames: &[CmuFrame<'_>]) -> (String, f32
         }
         let _ = writeln!(text, "{pad}}}");
     }
-    emit(&mut text, 0, 0, bones, &head, &tail);
-    // File order of the joints: depth first, as written.
     let mut order = Vec::new();
-    fn walk(b: usize, bones: &[super::skeleton::Bone], order: &mut Vec<usize>) {
-        order.push(b);
-        for c in (0..bones.len()).filter(|&c| bones[c].parent == Some(b)) {
-            walk(c, bones, order);
-        }
-    }
-    walk(0, bones, &mut order);
+    emit(&mut text, &mut order, 0, 0, bones, &head, &tail);
     let _ = writeln!(
         text,
         "MOTION\nFrames: {}\nFrame Time: 0.008333",
