@@ -220,22 +220,29 @@ fn tampered_and_truncated_shards_are_named() {
 #[test]
 fn bad_configs_are_refused_before_any_work() {
     let t = tempfile::tempdir().unwrap();
+    let out = t.path().join("o");
+    // `drape gen ARGS -o OUT` fails, names what is wrong, and writes nothing.
+    let refused = |args: &[&std::ffi::OsStr], names: &str| {
+        let (ok, text) = run(drape().arg("gen").args(args).arg("-o").arg(&out));
+        assert!(!ok && text.contains(names), "{text}");
+        assert!(
+            !out.exists(),
+            "a refused `drape gen {args:?}` created {}",
+            out.display()
+        );
+    };
     let cfg = t.path().join("bad.toml");
     std::fs::write(&cfg, "name = \"x\"\ngarment = \"tshirt\"\nresolution = 3000\nseed = 1\nposes_per_body = 0\n[bodies]\ntrain = 1\nval = 0\ntest = 0\n").unwrap();
-    let (ok, text) = run(drape()
-        .arg("gen")
-        .arg(&cfg)
-        .arg("-o")
-        .arg(t.path().join("o")));
-    assert!(!ok && text.contains("poses_per_body"), "{text}");
-    let (ok, text) = run(drape()
-        .args(["gen", "no-such-config", "-o"])
-        .arg(t.path().join("o")));
-    assert!(!ok && text.contains("built-in configs: tiny"), "{text}");
-    let (ok, text) = run(drape()
-        .args(["gen", "tiny", "--max-failure-rate", "1.5", "-o"])
-        .arg(t.path().join("o")));
-    assert!(!ok && text.contains("--max-failure-rate 1.5"), "{text}");
+    refused(&[cfg.as_os_str()], "poses_per_body");
+    refused(&["no-such-config".as_ref()], "built-in configs: tiny");
+    refused(
+        &[
+            "tiny".as_ref(),
+            "--max-failure-rate".as_ref(),
+            "1.5".as_ref(),
+        ],
+        "--max-failure-rate 1.5",
+    );
 }
 
 /// Python reads the shards with numpy through the safetensors package and sees what Rust

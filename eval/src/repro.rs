@@ -2,7 +2,7 @@
 //! generate, which networks to train (and from which run fine-tunes start), what to
 //! evaluate and time, the planned hours of every stage and the measured ones.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -104,7 +104,7 @@ impl Plan {
         if self.parallel_runs == 0 {
             return Err("parallel_runs must be at least 1".into());
         }
-        let mut seen = std::collections::BTreeSet::new();
+        let mut seen = BTreeSet::new();
         for d in &self.datasets {
             if !seen.insert(d.key.as_str()) {
                 return Err(format!("dataset key {:?} appears twice", d.key));
@@ -121,7 +121,7 @@ impl Plan {
                 ));
             }
         }
-        let mut runs = std::collections::BTreeSet::new();
+        let mut runs = BTreeSet::new();
         for r in &self.runs {
             if !seen.contains(r.data.as_str()) {
                 return Err(format!("run {}: no dataset with key {:?}", r.key, r.data));
@@ -221,17 +221,25 @@ impl Ledger {
     /// Reads `path` (empty if it does not exist). A ledger written before machine time was
     /// kept (stages ran one at a time then) takes the sum of its stages.
     pub fn load(path: &Path) -> Result<Self, EvalError> {
+        /// The file's form: `machine_seconds` is missing in ledgers that predate it.
+        #[derive(Deserialize)]
+        struct File {
+            seconds: BTreeMap<String, f64>,
+            done: BTreeMap<String, bool>,
+            machine_seconds: Option<f64>,
+        }
         match std::fs::read(path) {
             Ok(b) => {
-                let bad =
-                    |e: serde_json::Error| EvalError::Invalid(format!("{}: {e}", path.display()));
-                let v: serde_json::Value = serde_json::from_slice(&b).map_err(bad)?;
-                let old = v.get("machine_seconds").is_none();
-                let mut l: Ledger = serde_json::from_value(v).map_err(bad)?;
-                if old {
-                    l.machine_seconds = l.seconds.values().sum();
-                }
-                Ok(l)
+                let f: File = serde_json::from_slice(&b)
+                    .map_err(|e| EvalError::Invalid(format!("{}: {e}", path.display())))?;
+                let machine_seconds = f
+                    .machine_seconds
+                    .unwrap_or_else(|| f.seconds.values().sum());
+                Ok(Ledger {
+                    seconds: f.seconds,
+                    done: f.done,
+                    machine_seconds,
+                })
             }
             Err(_) => Ok(Self::default()),
         }
@@ -268,10 +276,10 @@ pub struct Clock {
     /// What has been credited.
     pub ledger: Ledger,
     path: PathBuf,
-    /// Since when machine time is not yet credited (while any stage runs).
-    phase: Option<Instant>,
-    /// Since when each running stage's time is not yet credited.
-    stages: BTreeMap<String, Instant>,
+    /// The last credit: time since then is not yet in the ledger.
+    since: Instant,
+    /// The stages running now (the machine counts while any runs).
+    running: BTreeSet<String>,
 }
 
 impl Clock {
@@ -280,62 +288,69 @@ impl Clock {
         Self {
             ledger,
             path: path.to_path_buf(),
-            phase: None,
-            stages: BTreeMap::new(),
+            since: Instant::now(),
+            running: BTreeSet::new(),
+        }
+    }
+
+    /// Moves the time since the last credit into the ledger (not saved).
+    fn settle(&mut self) {
+        let now = Instant::now();
+        let dt = (now - self.since).as_secs_f64();
+        self.since = now;
+        if self.running.is_empty() {
+            return;
+        }
+        self.ledger.machine_seconds += dt;
+        for name in &self.running {
+            *self.ledger.seconds.entry(name.clone()).or_default() += dt;
         }
     }
 
     /// Credits the time since the last credit to the running stages and the machine, and
     /// saves the ledger.
     pub fn credit(&mut self) -> Result<(), EvalError> {
-        let now = Instant::now();
-        if let Some(p) = self.phase.as_mut() {
-            self.ledger.machine_seconds += (now - *p).as_secs_f64();
-            *p = now;
-        }
-        for (name, t) in self.stages.iter_mut() {
-            *self.ledger.seconds.entry(name.clone()).or_default() += (now - *t).as_secs_f64();
-            *t = now;
-        }
+        self.settle();
         self.ledger.save(&self.path)
     }
 
     /// Stage `name` starts now.
     pub fn start(&mut self, name: &str) -> Result<(), EvalError> {
-        self.credit()?;
-        let now = Instant::now();
-        self.phase.get_or_insert(now);
-        self.stages.insert(name.to_string(), now);
-        Ok(())
+        self.settle();
+        self.running.insert(name.to_string());
+        self.ledger.save(&self.path)
     }
 
     /// Stage `name` ends now, finished or not.
     pub fn end(&mut self, name: &str, done: bool) -> Result<(), EvalError> {
-        self.credit()?;
-        self.stages.remove(name);
-        if self.stages.is_empty() {
-            self.phase = None;
-        }
+        self.settle();
+        self.running.remove(name);
         self.ledger.done.insert(name.to_string(), done);
         self.ledger.save(&self.path)
     }
 
+    /// Seconds since the last credit that count (none while no stage runs).
+    fn pending(&self) -> f64 {
+        if self.running.is_empty() {
+            0.0
+        } else {
+            self.since.elapsed().as_secs_f64()
+        }
+    }
+
     /// Machine hours, credited or not.
     pub fn hours(&self) -> f64 {
-        self.ledger.hours()
-            + self
-                .phase
-                .map_or(0.0, |p| p.elapsed().as_secs_f64() / 3600.0)
+        self.ledger.hours() + self.pending() / 3600.0
     }
 
     /// Hours of stage `name`, credited or not.
     pub fn stage_hours(&self, name: &str) -> f64 {
-        (self.ledger.seconds.get(name).copied().unwrap_or(0.0)
-            + self
-                .stages
-                .get(name)
-                .map_or(0.0, |t| t.elapsed().as_secs_f64()))
-            / 3600.0
+        let pending = if self.running.contains(name) {
+            self.pending()
+        } else {
+            0.0
+        };
+        (self.ledger.seconds.get(name).copied().unwrap_or(0.0) + pending) / 3600.0
     }
 }
 

@@ -320,21 +320,16 @@ pub fn measure(
             per.push(t0.elapsed().as_secs_f64() / b as f64);
         }
     }
-    let flops_by_variant = [
-        Variant::Naive,
-        Variant::Global,
-        Variant::Local,
-        Variant::GlobalParams,
-    ]
-    .into_iter()
-    .map(|v| {
-        let c = ModelConfig {
-            variant: v,
-            ..net.config.model.clone()
-        };
-        (v.paper_name().to_string(), net.forward_flops(&c))
-    })
-    .collect();
+    let flops_by_variant = Variant::ALL
+        .into_iter()
+        .map(|v| {
+            let c = ModelConfig {
+                variant: v,
+                ..net.config.model.clone()
+            };
+            (v.paper_name().to_string(), net.forward_flops(&c))
+        })
+        .collect();
     Ok(SpeedReport {
         network: net.config.model.variant.paper_name().to_string(),
         vertices: data.statics.garment_vertices.len(),

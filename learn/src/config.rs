@@ -23,6 +23,14 @@ pub enum Variant {
 }
 
 impl Variant {
+    /// The whole family, in the paper's order.
+    pub const ALL: [Variant; 4] = [
+        Variant::Naive,
+        Variant::Global,
+        Variant::Local,
+        Variant::GlobalParams,
+    ];
+
     /// Name as in the paper.
     pub fn paper_name(self) -> &'static str {
         match self {

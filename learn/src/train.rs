@@ -343,8 +343,23 @@ pub struct TrainOptions {
     pub progress: bool,
 }
 
-/// Shuffled training batches of one epoch, read `shuffle_shards` shards at a time.
-fn epoch_order(data: &Dataset, config: &TrainConfig, epoch: usize) -> Vec<Vec<String>> {
+/// Shards read together in one epoch, and how many of their rows train (converged, and in
+/// `max_train_samples`' subset if there is one), as the manifest lists them.
+struct Group {
+    shards: Vec<String>,
+    rows: usize,
+}
+
+/// The epoch's groups: the training shards shuffled and read `shuffle_shards` at a time.
+/// Each group is shuffled and cut into batches on its own, so its last batch may be
+/// partial: the epoch has `sum(ceil(rows / batch_size))` batches. The training loop checks
+/// each group's rows against `rows`, so the schedule's length cannot drift from the loop.
+fn epoch_groups(
+    data: &Dataset,
+    config: &TrainConfig,
+    subset: Option<&std::collections::HashSet<u64>>,
+    epoch: usize,
+) -> Vec<Group> {
     let mut shards: Vec<String> = data
         .manifest
         .shards
@@ -356,32 +371,18 @@ fn epoch_order(data: &Dataset, config: &TrainConfig, epoch: usize) -> Vec<Vec<St
     shards.shuffle(&mut rng);
     shards
         .chunks(config.shuffle_shards)
-        .map(|c| c.to_vec())
-        .collect()
-}
-
-/// Batches of epoch `epoch` as the loop below makes them: each group of shards is
-/// shuffled and cut into batches on its own, so a group's last batch may be partial.
-fn epoch_batches(
-    data: &Dataset,
-    config: &TrainConfig,
-    subset: Option<&std::collections::HashSet<u64>>,
-    epoch: usize,
-) -> usize {
-    epoch_order(data, config, epoch)
-        .iter()
-        .map(|group| {
-            let rows: usize = data
+        .map(|c| Group {
+            rows: data
                 .manifest
                 .shards
                 .iter()
-                .filter(|s| group.contains(&s.file))
+                .filter(|s| c.contains(&s.file))
                 .flat_map(|s| s.samples.iter())
                 .filter(|r| r.ok && subset.is_none_or(|k| k.contains(&r.plan.id)))
-                .count();
-            rows.div_ceil(config.batch_size)
+                .count(),
+            shards: c.to_vec(),
         })
-        .sum()
+        .collect()
 }
 
 /// Trains (or resumes) a run. Returns the final state.
@@ -437,7 +438,12 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     }
     // Steps of the whole run (the learning-rate schedule's length) and before each epoch.
     let per_epoch: Vec<usize> = (0..config.epochs)
-        .map(|e| epoch_batches(&data, config, subset.as_ref(), e))
+        .map(|e| {
+            epoch_groups(&data, config, subset.as_ref(), e)
+                .iter()
+                .map(|g| g.rows.div_ceil(config.batch_size))
+                .sum()
+        })
         .collect();
     let total_steps: usize = per_epoch.iter().sum();
     let bar = crate::run::progress(opts.progress, total_steps as u64);
@@ -463,13 +469,21 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         let mut sum = Terms::default();
         let mut seen = 0usize;
         let mut batch_index = 0usize;
-        for group in epoch_order(&data, config, state.epoch) {
+        for group in epoch_groups(&data, config, subset.as_ref(), state.epoch) {
             let mut rows = Vec::new();
-            for f in &group {
+            for f in &group.shards {
                 rows.extend(data.read_shard(f)?);
             }
             if let Some(keep) = &subset {
                 rows.retain(|r| keep.contains(&r.id));
+            }
+            if rows.len() != group.rows {
+                return Err(LearnError::Mismatch(format!(
+                    "shards {} hold {} training rows; the manifest lists {}",
+                    group.shards.join(", "),
+                    rows.len(),
+                    group.rows
+                )));
             }
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
                 config

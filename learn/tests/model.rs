@@ -69,12 +69,7 @@ fn every_variant_outputs_one_translation_per_vertex() {
     let device = Device::default();
     let (_, topo) = grid(6, 5);
     let g = Graph::new(&topo, &device);
-    for variant in [
-        Variant::Naive,
-        Variant::Global,
-        Variant::Local,
-        Variant::GlobalParams,
-    ] {
+    for variant in Variant::ALL {
         let c = small_config(variant);
         c.validate().unwrap();
         let net = GarNet::new(&c, 13, &device);
