@@ -181,15 +181,15 @@ impl Plan {
     }
 }
 
-/// Measured time of each stage, kept in `OUT/stages.json` across interruptions.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+/// Measured time of each stage, kept in `OUT/stages.json` across interruptions (read by
+/// [`Ledger::load`], which also takes the older form).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct Ledger {
     /// Wall seconds spent per stage (all invocations). Training stages may overlap.
     pub seconds: BTreeMap<String, f64>,
     /// Stages finished.
     pub done: BTreeMap<String, bool>,
     /// Wall seconds of the machine while any stage ran: what the budget counts.
-    #[serde(default)]
     pub machine_seconds: f64,
 }
 

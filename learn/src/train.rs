@@ -436,10 +436,15 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     if config.loss.has_curvature() && config.loss.rescale_curvature {
         setup.scales = curvature_scales(&setup, &model, &data, &opts.run)?;
     }
-    // Steps of the whole run (the learning-rate schedule's length) and before each epoch.
-    let per_epoch: Vec<usize> = (0..config.epochs)
-        .map(|e| {
-            epoch_groups(&data, config, subset.as_ref(), e)
+    // Every epoch's groups; steps of the whole run (the learning-rate schedule's length)
+    // and before each epoch.
+    let groups: Vec<Vec<Group>> = (0..config.epochs)
+        .map(|e| epoch_groups(&data, config, subset.as_ref(), e))
+        .collect();
+    let per_epoch: Vec<usize> = groups
+        .iter()
+        .map(|epoch| {
+            epoch
                 .iter()
                 .map(|g| g.rows.div_ceil(config.batch_size))
                 .sum()
@@ -469,7 +474,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         let mut sum = Terms::default();
         let mut seen = 0usize;
         let mut batch_index = 0usize;
-        for group in epoch_groups(&data, config, subset.as_ref(), state.epoch) {
+        for group in &groups[state.epoch] {
             let mut rows = Vec::new();
             for f in &group.shards {
                 rows.extend(data.read_shard(f)?);
