@@ -9,6 +9,8 @@
 //!   baselines measured on a dataset split (`drape eval`); [`report`] writes the report
 //!   folder; [`exr`] the float error images.
 //! - [`speed`]: the speed-up of a network over the simulator (`drape bench speedup`).
+//! - [`sensitivity`]: how far drapes move under a micrometre disturbance of the
+//!   simulation (`drape data sensitivity`), the part of a target no input determines.
 //! - [`repro`]: the reproduction plan, its stage ledger and `docs/reproduction.md`.
 //! - [`plot`]: line charts (the average-precision curves) and colour bars as images.
 #![warn(missing_docs)]
@@ -20,4 +22,5 @@ pub mod plot;
 pub mod render;
 pub mod report;
 pub mod repro;
+pub mod sensitivity;
 pub mod speed;

@@ -108,14 +108,16 @@ fn sha256_file(path: &Path) -> Result<String, EvalError> {
     Ok(dataset::generate::sha256(&bytes))
 }
 
-/// Body, simulator garment | body, network garment coloured by its error, with a colour
-/// bar; and the error image (cm) of the network view.
+/// Body, simulator garment | body, another garment (the network's) coloured by its
+/// distance to the simulator's, with a colour bar titled `label`; and the error image (cm)
+/// of the right view.
 pub fn sample_render(
     body: &[Vec3],
     body_triangles: &[[u32; 3]],
     garment_triangles: &[[u32; 3]],
     truth: &[Vec3],
     pred: &[Vec3],
+    label: &str,
 ) -> Result<(Image, crate::render::Values), EvalError> {
     let opts = RenderOptions {
         height: 420,
@@ -145,13 +147,12 @@ pub fn sample_render(
         &opts,
     )?;
     let top = grid(&[sim_img, net_img], 2, [242, 242, 242]);
-    let bar = colour_bar(
-        ERROR_SCALE_CM as f64,
-        "network error (cm): right pair; simulator: left pair",
-        top.width.min(700),
-    );
+    let bar = colour_bar(ERROR_SCALE_CM as f64, label, top.width.min(700));
     Ok((stack(&[top, bar], [255, 255, 255]), values))
 }
+
+/// The colour bar's title under a network's render.
+pub const NETWORK_LABEL: &str = "network error (cm): right pair; simulator: left pair";
 
 fn fmt_ms(v: (f64, f64), digits: usize) -> String {
     format!("{:.digits$} ± {:.digits$}", v.0, v.1)
@@ -309,6 +310,7 @@ pub fn write_report(
                 &st.garment_triangles,
                 &row.draped,
                 pred,
+                NETWORK_LABEL,
             ) {
                 Ok((img, values)) => {
                     files.push((out.join(format!("{name}.png")), encode_png(&img)?));

@@ -1,4 +1,4 @@
-//! `drape gen` and `drape data info|verify|merge`.
+//! `drape gen` and `drape data info|verify|merge|sensitivity`.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -68,6 +68,36 @@ pub enum DataCommand {
         /// Output folder (may be the parts' folder itself).
         #[arg(short, long, value_name = "DIR")]
         output: PathBuf,
+    },
+    /// How much of a drape no input determines: redrape samples with the starting template
+    /// moved by micrometres and measure Edist to the dataset's drape (the floor under a
+    /// network's Edist); `--model` measures a network on the same samples.
+    Sensitivity {
+        /// Dataset folder.
+        dir: PathBuf,
+        /// Split to take samples from: train, val or test.
+        #[arg(long, default_value = "test")]
+        split: String,
+        /// Samples redraped (the first ones of the split).
+        #[arg(long, default_value_t = 20)]
+        samples: usize,
+        /// Largest offset of a starting vertex per coordinate (m); a comma-separated list
+        /// redrapes each sample once per value.
+        #[arg(long, value_delimiter = ',', default_value = "1e-6,1e-4")]
+        amplitude: Vec<f32>,
+        /// Seed of the offsets.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run folder of a trained network to measure on the same samples.
+        #[arg(long = "model", value_name = "RUN_DIR")]
+        run: Option<PathBuf>,
+        /// Also write the figures as JSON.
+        #[arg(long, value_name = "FILE.json")]
+        json: Option<PathBuf>,
+        /// Write a render of the sample that moved most at the first amplitude (dataset's
+        /// drape beside the redrape coloured by their distance) to this PNG.
+        #[arg(long, value_name = "FILE.png")]
+        render: Option<PathBuf>,
     },
 }
 
@@ -214,9 +244,161 @@ fn mb(b: u64) -> String {
     format!("{:.1} MB", b as f64 / 1e6)
 }
 
+/// Runs `drape data sensitivity`.
+#[allow(clippy::too_many_arguments)]
+fn sensitivity_run(
+    ctx: &Context,
+    dir: &std::path::Path,
+    split: &str,
+    samples: usize,
+    amplitudes: Vec<f32>,
+    seed: u64,
+    run: Option<&std::path::Path>,
+    json: Option<&std::path::Path>,
+    render: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    use eval::sensitivity::{SensitivityOptions, measure};
+    let split = Split::parse(split)?;
+    if samples == 0 {
+        anyhow::bail!("--samples must be at least 1");
+    }
+    let opts = SensitivityOptions {
+        samples,
+        split,
+        amplitudes,
+        seed,
+    };
+    opts.validate()?;
+    let amplitudes = &opts.amplitudes;
+    let data = Dataset::open(dir)?;
+    let dc = data.manifest.dataset_config()?;
+    let (model, _, template) =
+        generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
+    super::bench::check_template(&template, &data, &dc.garment, dir)?;
+    let n = samples.min(data.count(split));
+    println!(
+        "{} ({}, {} vertices): {n} {} samples redraped {} time(s) each with the dataset's simulator config ({} substeps at {} fps), starting offsets up to {} m; seed {seed}",
+        dc.name,
+        dc.garment,
+        template.mesh.vertices.len(),
+        split.name(),
+        amplitudes.len(),
+        dc.sim.substeps,
+        dc.sim.fps,
+        amplitudes
+            .iter()
+            .map(|a| format!("{a:e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    print!("{:>8} {:>8}", "sample", "DQS cm");
+    if run.is_some() {
+        print!(" {:>10}", "network cm");
+    }
+    for a in amplitudes {
+        print!(" {:>16}", format!("Edist@{a:e} cm"));
+    }
+    println!();
+    let report = measure(&data, &model, &template, run, &opts, &mut |s| {
+        print!("{:>8} {:>8.2}", s.id, s.dqs_cm);
+        if let Some(n) = s.network_cm {
+            print!(" {n:>10.2}");
+        }
+        for r in &s.redrapes {
+            match &r.failure {
+                None => print!(" {:>16.2}", r.edist_cm),
+                Some(_) => print!(" {:>16}", format!("{:.2} failed", r.edist_cm)),
+            }
+        }
+        println!();
+    })?;
+    println!(
+        "mean DQS Edist {:.2} cm{}",
+        report.dqs_cm,
+        report
+            .network_cm
+            .map(|n| format!(", network Edist {n:.2} cm"))
+            .unwrap_or_default()
+    );
+    for s in &report.summaries {
+        println!(
+            "offsets up to {:e} m: {} of {} redrapes converged; Edist to the dataset's drape {:.2} ± {:.2} cm (median {:.2}, largest {:.2}), Enorm {:.1} ± {:.1} deg, {:.1}% of vertices over 1 cm away{}",
+            s.amplitude,
+            s.converged,
+            s.redrapes,
+            s.edist_cm.0,
+            s.edist_cm.1,
+            s.edist_median_cm,
+            s.edist_max_cm,
+            s.enorm_deg.0,
+            s.enorm_deg.1,
+            100.0 * s.over_1cm,
+            s.correlation_with_network
+                .map(|r| format!("; correlation with the network's Edist {r:.2}"))
+                .unwrap_or_default()
+        );
+    }
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)?)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    }
+    if let Some(path) = render {
+        let worst = report
+            .samples
+            .iter()
+            .max_by(|a, b| a.redrapes[0].edist_cm.total_cmp(&b.redrapes[0].edist_cm))
+            .expect("at least one sample");
+        let rows = eval::evaluate::rows_of(&data, split, &[worst.id])?;
+        let row = &rows[0];
+        // Redrape it again (deterministic: the same offsets) to have its positions.
+        let one = SensitivityOptions {
+            samples: 1,
+            ..opts.clone()
+        };
+        let redrape = eval::sensitivity::redrape(&data, &model, &template, row, &one, 0)?;
+        let (img, _) = eval::report::sample_render(
+            &row.body,
+            &data.statics.body_triangles,
+            &data.statics.garment_triangles,
+            &row.draped,
+            &redrape,
+            "distance (cm) of the redrape (right) to the drape (left)",
+        )?;
+        std::fs::write(path, eval::render::encode_png(&img)?)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+        println!(
+            "render of sample {} (dataset's drape, left; redrape from offsets up to {:e} m, right) -> {}",
+            row.id,
+            opts.amplitudes[0],
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// Runs `drape data`.
-pub fn data_run(args: DataArgs, _ctx: &Context) -> anyhow::Result<()> {
+pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
     match args.command {
+        DataCommand::Sensitivity {
+            dir,
+            split,
+            samples,
+            amplitude,
+            seed,
+            run,
+            json,
+            render,
+        } => sensitivity_run(
+            ctx,
+            &dir,
+            &split,
+            samples,
+            amplitude,
+            seed,
+            run.as_deref(),
+            json.as_deref(),
+            render.as_deref(),
+        ),
         DataCommand::Info { dir, json } => {
             let ds = Dataset::open(&dir)?;
             let i = inspect::info(&ds)?;

@@ -155,8 +155,14 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
 
     std::fs::create_dir_all(&args.output)
         .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", args.output.display()))?;
-    let (img, _) =
-        eval::report::sample_render(&posed.vertices, &model.triangles, tris, truth, pred)?;
+    let (img, _) = eval::report::sample_render(
+        &posed.vertices,
+        &model.triangles,
+        tris,
+        truth,
+        pred,
+        eval::report::NETWORK_LABEL,
+    )?;
     let header = format!(
         "drape quickstart, seed {}, {} pose",
         args.seed, drawn.family

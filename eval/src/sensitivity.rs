@@ -1,0 +1,377 @@
+//! `drape data sensitivity`: how far a dataset's drapes move when the simulation is
+//! disturbed by a detail no network input carries.
+//!
+//! For each sample the simulator redrapes it exactly as the dataset did (the same body
+//! morph, simulator config and garment model) except that the starting template
+//! positions are moved by independent uniform offsets of at most `amplitude` metres per
+//! coordinate (a micrometre by default, far below anything visible or any input of a
+//! network). Cloth buckling is a bifurcation: where a fold could form left or right, such
+//! a disturbance can pick the other branch. Edist between the disturbed drape and the
+//! dataset's then measures the part of the target that the network's inputs (body shape,
+//! pose, template) do not determine.
+//!
+//! How to read it: if the disturbed drape and the dataset's were two independent draws of
+//! the same spread, a network predicting their mean would be off by about Edist / sqrt(2)
+//! (exact for a Gaussian spread); a network trained with L_vert on such targets cannot do
+//! better on average. With `--model` the network's own Edist on the same samples is
+//! measured beside it.
+
+use dataset::config::Split;
+use dataset::reader::Dataset;
+use dataset::shard::Row;
+use glam::Vec3;
+use learn::predict::Predictor;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sim::body::pose::Pose;
+use sim::body::{BodyModel, ShapeParams};
+use sim::cloth::ClothModel;
+use sim::cloth::drape::{self, BodyMorph};
+use sim::garment::Template;
+
+use crate::evaluate::EvalError;
+use crate::metrics::{edist_cm, enorm_deg, mean_std, median, vertex_errors};
+
+/// Options of the measurement.
+#[derive(Debug, Clone)]
+pub struct SensitivityOptions {
+    /// Samples redraped (the first converged ones of the split).
+    pub samples: usize,
+    /// Split to take samples from.
+    pub split: Split,
+    /// Largest offset of a starting position per coordinate (m), one redrape per value.
+    pub amplitudes: Vec<f32>,
+    /// Seed of the offsets (sample `id` and amplitude index are mixed in).
+    pub seed: u64,
+}
+
+impl Default for SensitivityOptions {
+    fn default() -> Self {
+        Self {
+            samples: 20,
+            split: Split::Test,
+            amplitudes: vec![1e-6, 1e-4],
+            seed: 1,
+        }
+    }
+}
+
+impl SensitivityOptions {
+    /// Fails on an empty amplitude list or an amplitude outside (0, 1 cm].
+    pub fn validate(&self) -> Result<(), EvalError> {
+        if self.amplitudes.is_empty() {
+            return Err(EvalError::Invalid("give at least one amplitude".into()));
+        }
+        if let Some(a) = self
+            .amplitudes
+            .iter()
+            .find(|a| !(a.is_finite() && **a > 0.0 && **a <= 0.01))
+        {
+            return Err(EvalError::Invalid(format!(
+                "amplitude {a} m: give values above 0 and at most 0.01 m"
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// One redrape of one sample.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Redrape {
+    /// Largest starting offset per coordinate (m).
+    pub amplitude: f32,
+    /// Edist between the redrape and the dataset's drape (cm).
+    pub edist_cm: f64,
+    /// Enorm between them (degrees).
+    pub enorm_deg: f64,
+    /// The largest vertex distance between them (cm).
+    pub max_cm: f64,
+    /// Share of vertices more than 1 cm from the dataset's drape.
+    pub over_1cm: f64,
+    /// Why the redrape failed (it is left out of the summary), if it did.
+    pub failure: Option<String>,
+    /// Wall time of the redrape (s).
+    pub seconds: f64,
+}
+
+/// One sample.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SampleSensitivity {
+    /// Sample id.
+    pub id: u64,
+    /// Edist of the DQS warp (no physics) to the dataset's drape (cm), for scale.
+    pub dqs_cm: f64,
+    /// Edist of the network to the dataset's drape (cm), with `--model`.
+    pub network_cm: Option<f64>,
+    /// One per amplitude, in the options' order.
+    pub redrapes: Vec<Redrape>,
+}
+
+/// Summary of one amplitude over the samples whose redrape converged.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AmplitudeSummary {
+    /// Largest starting offset per coordinate (m).
+    pub amplitude: f32,
+    /// Redrapes that converged (counted below) and all of them.
+    pub converged: usize,
+    /// Redrapes made.
+    pub redrapes: usize,
+    /// Edist to the dataset's drape (cm): mean, standard deviation, median, largest.
+    pub edist_cm: (f64, f64),
+    /// Median Edist (cm).
+    pub edist_median_cm: f64,
+    /// Largest Edist (cm).
+    pub edist_max_cm: f64,
+    /// Mean Enorm (degrees) and its standard deviation.
+    pub enorm_deg: (f64, f64),
+    /// Mean share of vertices more than 1 cm away.
+    pub over_1cm: f64,
+    /// Pearson correlation over samples between this Edist and the network's, with
+    /// `--model` and at least three samples.
+    pub correlation_with_network: Option<f64>,
+}
+
+/// The whole measurement.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SensitivityReport {
+    /// Dataset name.
+    pub dataset: String,
+    /// Garment vertices.
+    pub vertices: usize,
+    /// Split measured.
+    pub split: String,
+    /// Seed of the offsets.
+    pub seed: u64,
+    /// Per sample.
+    pub samples: Vec<SampleSensitivity>,
+    /// Per amplitude.
+    pub summaries: Vec<AmplitudeSummary>,
+    /// Mean DQS Edist over the samples (cm).
+    pub dqs_cm: f64,
+    /// Mean network Edist over the samples (cm), with `--model`.
+    pub network_cm: Option<f64>,
+}
+
+/// The starting positions moved by independent uniform offsets in `[-a, a]` per coordinate.
+pub fn jitter(start: &[Vec3], amplitude: f32, seed: u64) -> Vec<Vec3> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    start
+        .iter()
+        .map(|p| {
+            *p + Vec3::new(
+                rng.random_range(-amplitude..=amplitude),
+                rng.random_range(-amplitude..=amplitude),
+                rng.random_range(-amplitude..=amplitude),
+            )
+        })
+        .collect()
+}
+
+fn pearson(a: &[f64], b: &[f64]) -> Option<f64> {
+    if a.len() < 3 || a.len() != b.len() {
+        return None;
+    }
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let cov: f64 = a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+    let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+    let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+    (va > 0.0 && vb > 0.0).then(|| cov / (va * vb).sqrt())
+}
+
+/// The seed of sample `id`'s offsets at amplitude index `k`.
+fn offset_seed(seed: u64, id: u64, k: usize) -> u64 {
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(id.wrapping_mul(1_000_003))
+        .wrapping_add(k as u64)
+}
+
+/// `row` draped as the dataset did, from the template moved by the offsets of amplitude
+/// index `k`.
+fn redrape_with(
+    cloth: &ClothModel,
+    sim: &sim::cloth::SimConfig,
+    model: &BodyModel,
+    template: &Template,
+    row: &Row,
+    opts: &SensitivityOptions,
+    k: usize,
+) -> Result<drape::DrapeResult, EvalError> {
+    let motion = BodyMorph::new(
+        model,
+        ShapeParams::default(),
+        ShapeParams::from_named(row.shape),
+        Pose {
+            rotations: row.pose.clone(),
+            root_translation: row.root,
+        },
+        sim.morph_frames,
+    )
+    .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))?;
+    let start = jitter(
+        &template.mesh.vertices,
+        opts.amplitudes[k],
+        offset_seed(opts.seed, row.id, k),
+    );
+    Ok(drape::drape(cloth, &start, &motion, sim, true, &mut |_| {}))
+}
+
+/// The positions of one redrape of `row` (of `data`), as [`measure`] made it at amplitude
+/// index `k` of `opts`.
+pub fn redrape(
+    data: &Dataset,
+    model: &BodyModel,
+    template: &Template,
+    row: &Row,
+    opts: &SensitivityOptions,
+    k: usize,
+) -> Result<Vec<Vec3>, EvalError> {
+    let config = data.manifest.dataset_config()?;
+    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
+        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
+    Ok(redrape_with(&cloth, &config.sim, model, template, row, opts, k)?.positions)
+}
+
+/// Redrapes the first `opts.samples` samples of `data`'s split once per amplitude.
+/// `template` must be the template the dataset was made with; `run`, if given, is a trained
+/// network measured on the same samples. `progress` is called per finished sample.
+pub fn measure(
+    data: &Dataset,
+    model: &BodyModel,
+    template: &Template,
+    run: Option<&std::path::Path>,
+    opts: &SensitivityOptions,
+    progress: &mut dyn FnMut(&SampleSensitivity),
+) -> Result<SensitivityReport, EvalError> {
+    opts.validate()?;
+    let config = data.manifest.dataset_config()?;
+    if template.mesh.vertices.len() != data.statics.garment_vertices.len() {
+        return Err(EvalError::Invalid(format!(
+            "the template has {} vertices, the dataset {}",
+            template.mesh.vertices.len(),
+            data.statics.garment_vertices.len()
+        )));
+    }
+    let net = run.map(|r| Predictor::open(r, &data.statics)).transpose()?;
+    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
+        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
+    let rows: Vec<Row> = data
+        .samples(opts.split)
+        .take(opts.samples.max(1))
+        .map(|s| s.map(|s| s.row))
+        .collect::<Result<_, _>>()?;
+    if rows.is_empty() {
+        return Err(EvalError::Invalid(format!(
+            "{} has no converged {} samples",
+            data.dir.display(),
+            opts.split.name()
+        )));
+    }
+    let tris = &data.statics.garment_triangles;
+    let mut samples = Vec::with_capacity(rows.len());
+    for row in &rows {
+        let redrapes = (0..opts.amplitudes.len())
+            .map(|k| {
+                let out = redrape_with(&cloth, &config.sim, model, template, row, opts, k)?;
+                let d = vertex_errors(&out.positions, &row.draped);
+                Ok(Redrape {
+                    amplitude: opts.amplitudes[k],
+                    edist_cm: edist_cm(&out.positions, &row.draped),
+                    enorm_deg: enorm_deg(&out.positions, &row.draped, tris),
+                    max_cm: d.iter().fold(0.0f32, |m, &e| m.max(e)) as f64 * 100.0,
+                    over_1cm: d.iter().filter(|&&e| e > 0.01).count() as f64 / d.len() as f64,
+                    failure: out.report.failure.as_ref().map(|f| f.to_string()),
+                    seconds: out.report.wall_time,
+                })
+            })
+            .collect::<Result<Vec<_>, EvalError>>()?;
+        let network_cm = net.as_ref().map(|n| {
+            let (pred, _) = n.predict_rows(std::slice::from_ref(row));
+            edist_cm(&pred[0], &row.draped)
+        });
+        let s = SampleSensitivity {
+            id: row.id,
+            dqs_cm: edist_cm(&row.warped, &row.draped),
+            network_cm,
+            redrapes,
+        };
+        progress(&s);
+        samples.push(s);
+    }
+    let summaries = opts
+        .amplitudes
+        .iter()
+        .enumerate()
+        .map(|(k, &a)| {
+            let ok: Vec<&SampleSensitivity> = samples
+                .iter()
+                .filter(|s| s.redrapes[k].failure.is_none())
+                .collect();
+            let e: Vec<f64> = ok.iter().map(|s| s.redrapes[k].edist_cm).collect();
+            let n: Vec<f64> = ok.iter().map(|s| s.redrapes[k].enorm_deg).collect();
+            let over: Vec<f64> = ok.iter().map(|s| s.redrapes[k].over_1cm).collect();
+            let net: Vec<f64> = ok.iter().filter_map(|s| s.network_cm).collect();
+            AmplitudeSummary {
+                amplitude: a,
+                converged: ok.len(),
+                redrapes: samples.len(),
+                edist_cm: mean_std(&e),
+                edist_median_cm: median(e.clone()),
+                edist_max_cm: e.iter().fold(f64::NAN, |m, &x| m.max(x)),
+                enorm_deg: mean_std(&n),
+                over_1cm: mean_std(&over).0,
+                correlation_with_network: pearson(&e, &net),
+            }
+        })
+        .collect();
+    let dqs: Vec<f64> = samples.iter().map(|s| s.dqs_cm).collect();
+    let nets: Vec<f64> = samples.iter().filter_map(|s| s.network_cm).collect();
+    Ok(SensitivityReport {
+        dataset: data.manifest.name.clone(),
+        vertices: data.statics.garment_vertices.len(),
+        split: opts.split.name().to_string(),
+        seed: opts.seed,
+        summaries,
+        dqs_cm: mean_std(&dqs).0,
+        network_cm: (!nets.is_empty()).then(|| mean_std(&nets).0),
+        samples,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jitter_stays_within_the_amplitude_and_is_seeded() {
+        let start: Vec<Vec3> = (0..500).map(|i| Vec3::splat(i as f32 * 0.001)).collect();
+        let a = jitter(&start, 1e-4, 7);
+        let b = jitter(&start, 1e-4, 7);
+        let c = jitter(&start, 1e-4, 8);
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        let mut largest = 0.0f32;
+        for (p, q) in a.iter().zip(&start) {
+            let d = (*p - *q).abs().max_element();
+            // Within the bound up to the rounding of positions below 0.5 m (6e-8 m).
+            assert!(d <= 1e-4 + 1e-7, "offset {d}");
+            largest = largest.max(d);
+        }
+        // 1,500 uniform draws: the largest is within 1% of the bound.
+        assert!(largest > 0.99e-4, "largest offset {largest}");
+    }
+
+    #[test]
+    fn pearson_of_known_series() {
+        let a = [1.0, 2.0, 3.0, 4.0];
+        let r = pearson(&a, &[2.0, 4.0, 6.0, 8.0]).unwrap();
+        assert!((r - 1.0).abs() < 1e-12);
+        let r = pearson(&a, &[4.0, 3.0, 2.0, 1.0]).unwrap();
+        assert!((r + 1.0).abs() < 1e-12);
+        let r = pearson(&a, &[1.0, -1.0, -1.0, 1.0]).unwrap();
+        assert!(r.abs() < 1e-12);
+        assert!(pearson(&a[..2], &[1.0, 2.0]).is_none());
+        assert!(pearson(&a, &[1.0, 1.0, 1.0, 1.0]).is_none());
+    }
+}
