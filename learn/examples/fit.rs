@@ -46,7 +46,9 @@ fn main() {
     rows.truncate(samples);
     let prepared: Vec<Prepared> = rows.iter().map(|r| setup.pre.prepare_row(r)).collect();
     let mut model = GarNet::new(&config.model, setup.params, &device);
-    let mut optim = AdamConfig::new().init();
+    let mut optim = AdamConfig::new()
+        .with_epsilon(config.adam_epsilon as f32)
+        .init();
     let b = config.batch_size.min(prepared.len());
     let t0 = Instant::now();
     let report = |step: usize, model: &GarNet, t: &learn::train::Terms| {

@@ -55,7 +55,9 @@ pub fn train_rate(
     let setup = Setup::new(config, &data, &device);
     let mut model = GarNet::new(&config.model, setup.params, &device);
     let parameters = burn::module::Module::num_params(&model);
-    let mut optim = AdamConfig::new().init();
+    let mut optim = AdamConfig::new()
+        .with_epsilon(config.adam_epsilon as f32)
+        .init();
     let mut rows = Vec::new();
     let need = (batches + 1) * config.batch_size;
     for s in data

@@ -267,6 +267,15 @@ pub struct TrainConfig {
     /// along a half cosine (default: constant, as in the paper).
     #[serde(default)]
     pub learning_rate_end: Option<f64>,
+    /// Adam's epsilon, added to the root of the second moment (default 1e-5, burn's; the
+    /// paper used PyTorch's Adam, whose default is 1e-8). With losses in square metres
+    /// many gradients are below 1e-5, where it shrinks the steps: see docs/learn.md. Left
+    /// out of the saved config when it is the default.
+    #[serde(
+        default = "default_epsilon",
+        skip_serializing_if = "is_default_epsilon"
+    )]
+    pub adam_epsilon: f64,
     /// Train on only this many samples, the same every epoch: the lowest ids of the
     /// training split (0: all); for overfitting tests.
     #[serde(default)]
@@ -296,6 +305,12 @@ fn default_lr() -> f64 {
 }
 fn default_buffer() -> usize {
     2
+}
+fn default_epsilon() -> f64 {
+    1e-5
+}
+fn is_default_epsilon(e: &f64) -> bool {
+    *e == default_epsilon()
 }
 
 impl TrainConfig {
@@ -334,6 +349,12 @@ impl TrainConfig {
         if !(self.learning_rate > 0.0 && self.learning_rate < 1.0) {
             return bad(format!("learning_rate = {} (0 to 1)", self.learning_rate));
         }
+        if !(self.adam_epsilon > 0.0 && self.adam_epsilon <= 1e-2) {
+            return bad(format!(
+                "adam_epsilon = {} (above 0, at most 0.01)",
+                self.adam_epsilon
+            ));
+        }
         if let Some(end) = self.learning_rate_end
             && !(end > 0.0 && end <= self.learning_rate)
         {
@@ -371,5 +392,39 @@ impl TrainConfig {
             ));
         }
         self.model.validate()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(extra: &str) -> Result<TrainConfig, LearnError> {
+        let c: TrainConfig =
+            toml::from_str(&format!("name = \"t\"\ndata = \"d\"\nepochs = 1\n{extra}"))
+                .map_err(|e| LearnError::Config(e.to_string()))?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    #[test]
+    fn adam_epsilon_defaults_to_burns_and_is_left_out_of_saved_configs() {
+        let c = parse("").unwrap();
+        assert_eq!(c.adam_epsilon, 1e-5);
+        let saved = toml::to_string(&c).unwrap();
+        assert!(!saved.contains("adam_epsilon"), "{saved}");
+        let c = parse("adam_epsilon = 1e-8").unwrap();
+        assert_eq!(c.adam_epsilon, 1e-8);
+        let saved = toml::to_string(&c).unwrap();
+        assert!(saved.contains("adam_epsilon = "), "{saved}");
+        assert_eq!(toml::from_str::<TrainConfig>(&saved).unwrap(), c);
+        for bad in [
+            "adam_epsilon = 0.0",
+            "adam_epsilon = -1e-8",
+            "adam_epsilon = 0.5",
+        ] {
+            let e = parse(bad).unwrap_err().to_string();
+            assert!(e.contains("adam_epsilon"), "{bad}: {e}");
+        }
     }
 }

@@ -410,7 +410,9 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     // Model and optimiser: resume, or initialise (from scratch or from --init).
     device.seed(config.seed);
     let mut model = GarNet::new(&config.model, setup.params, &device);
-    let mut optim = AdamConfig::new().init();
+    let mut optim = AdamConfig::new()
+        .with_epsilon(config.adam_epsilon as f32)
+        .init();
     let last = opts.run.join("last.bpk");
     if last.exists() {
         model = load_model(model, &last)?;
