@@ -414,6 +414,23 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     })
 }
 
+/// The first `n` (at least one) rows of `split`; an error if the split has none.
+pub fn first_rows(data: &Dataset, split: Split, n: usize) -> Result<Vec<Row>, EvalError> {
+    let rows: Vec<Row> = data
+        .samples(split)
+        .take(n.max(1))
+        .map(|s| s.map(|s| s.row))
+        .collect::<Result<_, _>>()?;
+    if rows.is_empty() {
+        return Err(EvalError::Invalid(format!(
+            "{} has no converged {} samples",
+            data.dir.display(),
+            split.name()
+        )));
+    }
+    Ok(rows)
+}
+
 /// The rows of `ids` from `split` (for the renders), in the order of `ids`.
 pub fn rows_of(data: &Dataset, split: Split, ids: &[u64]) -> Result<Vec<Row>, EvalError> {
     let want: HashSet<u64> = ids.iter().copied().collect();

@@ -256,18 +256,7 @@ pub fn measure(
     let net = run.map(|r| Predictor::open(r, &data.statics)).transpose()?;
     let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
         .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
-    let rows: Vec<Row> = data
-        .samples(opts.split)
-        .take(opts.samples.max(1))
-        .map(|s| s.map(|s| s.row))
-        .collect::<Result<_, _>>()?;
-    if rows.is_empty() {
-        return Err(EvalError::Invalid(format!(
-            "{} has no converged {} samples",
-            data.dir.display(),
-            opts.split.name()
-        )));
-    }
+    let rows = crate::evaluate::first_rows(data, opts.split, opts.samples)?;
     let tris = &data.statics.garment_triangles;
     let mut samples = Vec::with_capacity(rows.len());
     for row in &rows {

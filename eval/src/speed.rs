@@ -226,18 +226,7 @@ pub fn measure(
     let canonical = model
         .shape(&ShapeParams::default())
         .map_err(|e| EvalError::Invalid(e.to_string()))?;
-    let rows: Vec<Row> = data
-        .samples(opts.split)
-        .take(opts.samples.max(1))
-        .map(|s| s.map(|s| s.row))
-        .collect::<Result<_, _>>()?;
-    if rows.is_empty() {
-        return Err(EvalError::Invalid(format!(
-            "{} has no converged {} samples",
-            data.dir.display(),
-            opts.split.name()
-        )));
-    }
+    let rows = crate::evaluate::first_rows(data, opts.split, opts.samples)?;
     let mut samples = Vec::new();
     let mut bodies_of_rows = Vec::with_capacity(rows.len());
     for row in &rows {
