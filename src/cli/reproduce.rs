@@ -354,9 +354,13 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
     let mut status_at = Instant::now();
     loop {
         while failures.is_empty() && running.0.len() < parallel {
-            let ready = pending
-                .iter()
-                .position(|r| r.init.as_ref().is_none_or(|i| finished_run(&run_dir(i))));
+            // A fine-tune waits until the run it starts from is finished on disk and its
+            // process has been reaped (its last files may be written just before it exits).
+            let ready = pending.iter().position(|r| {
+                r.init.as_ref().is_none_or(|i| {
+                    finished_run(&run_dir(i)) && !running.0.iter().any(|(x, _)| &x.key == i)
+                })
+            });
             let Some(k) = ready else { break };
             let r = pending.remove(k);
             let name = format!("train {}", r.key);
