@@ -23,15 +23,15 @@ use glam::Vec3;
 use learn::predict::Predictor;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
-use sim::body::pose::Pose;
-use sim::body::{BodyModel, ShapeParams};
+use serde::Serialize;
+use sim::body::BodyModel;
 use sim::cloth::ClothModel;
-use sim::cloth::drape::{self, BodyMorph};
+use sim::cloth::drape;
 use sim::garment::Template;
 
 use crate::evaluate::EvalError;
-use crate::metrics::{edist_cm, enorm_deg, mean_std, median, vertex_errors};
+use crate::metrics::{edist_cm, enorm_deg, mean, mean_std, median, vertex_errors};
+use crate::speed::{dataset_cloth, row_morph};
 
 /// Options of the measurement.
 #[derive(Debug, Clone)]
@@ -46,20 +46,12 @@ pub struct SensitivityOptions {
     pub seed: u64,
 }
 
-impl Default for SensitivityOptions {
-    fn default() -> Self {
-        Self {
-            samples: 20,
-            split: Split::Test,
-            amplitudes: vec![1e-6, 1e-4],
-            seed: 1,
-        }
-    }
-}
-
 impl SensitivityOptions {
-    /// Fails on an empty amplitude list or an amplitude outside (0, 1 cm].
+    /// Fails on no samples, an empty amplitude list or an amplitude outside (0, 1 cm].
     pub fn validate(&self) -> Result<(), EvalError> {
+        if self.samples == 0 {
+            return Err(EvalError::Invalid("samples = 0: redrape at least 1".into()));
+        }
         if self.amplitudes.is_empty() {
             return Err(EvalError::Invalid("give at least one amplitude".into()));
         }
@@ -77,7 +69,7 @@ impl SensitivityOptions {
 }
 
 /// One redrape of one sample.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct Redrape {
     /// Largest starting offset per coordinate (m).
     pub amplitude: f32,
@@ -96,7 +88,7 @@ pub struct Redrape {
 }
 
 /// One sample.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct SampleSensitivity {
     /// Sample id.
     pub id: u64,
@@ -109,7 +101,7 @@ pub struct SampleSensitivity {
 }
 
 /// Summary of one amplitude over the samples whose redrape converged.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct AmplitudeSummary {
     /// Largest starting offset per coordinate (m).
     pub amplitude: f32,
@@ -133,7 +125,7 @@ pub struct AmplitudeSummary {
 }
 
 /// The whole measurement.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct SensitivityReport {
     /// Dataset name.
     pub dataset: String,
@@ -151,6 +143,10 @@ pub struct SensitivityReport {
     pub dqs_cm: f64,
     /// Mean network Edist over the samples (cm), with `--model`.
     pub network_cm: Option<f64>,
+    /// The sample whose redrape at the first amplitude moved most, and that redrape's
+    /// positions (for a render; not written to JSON).
+    #[serde(skip)]
+    pub most_moved: Option<(Row, Vec<Vec3>)>,
 }
 
 /// The starting positions moved by independent uniform offsets in `[-a, a]` per coordinate.
@@ -189,7 +185,7 @@ fn offset_seed(seed: u64, id: u64, k: usize) -> u64 {
 
 /// `row` draped as the dataset did, from the template moved by the offsets of amplitude
 /// index `k`.
-fn redrape_with(
+fn redrape(
     cloth: &ClothModel,
     sim: &sim::cloth::SimConfig,
     model: &BodyModel,
@@ -198,39 +194,13 @@ fn redrape_with(
     opts: &SensitivityOptions,
     k: usize,
 ) -> Result<drape::DrapeResult, EvalError> {
-    let motion = BodyMorph::new(
-        model,
-        ShapeParams::default(),
-        ShapeParams::from_named(row.shape),
-        Pose {
-            rotations: row.pose.clone(),
-            root_translation: row.root,
-        },
-        sim.morph_frames,
-    )
-    .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))?;
+    let motion = row_morph(model, row, sim.morph_frames)?;
     let start = jitter(
         &template.mesh.vertices,
         opts.amplitudes[k],
         offset_seed(opts.seed, row.id, k),
     );
     Ok(drape::drape(cloth, &start, &motion, sim, true, &mut |_| {}))
-}
-
-/// The positions of one redrape of `row` (of `data`), as [`measure`] made it at amplitude
-/// index `k` of `opts`.
-pub fn redrape(
-    data: &Dataset,
-    model: &BodyModel,
-    template: &Template,
-    row: &Row,
-    opts: &SensitivityOptions,
-    k: usize,
-) -> Result<Vec<Vec3>, EvalError> {
-    let config = data.manifest.dataset_config()?;
-    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
-        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
-    Ok(redrape_with(&cloth, &config.sim, model, template, row, opts, k)?.positions)
 }
 
 /// Redrapes the first `opts.samples` samples of `data`'s split once per amplitude.
@@ -245,36 +215,35 @@ pub fn measure(
     progress: &mut dyn FnMut(&SampleSensitivity),
 ) -> Result<SensitivityReport, EvalError> {
     opts.validate()?;
-    let config = data.manifest.dataset_config()?;
-    if template.mesh.vertices.len() != data.statics.garment_vertices.len() {
-        return Err(EvalError::Invalid(format!(
-            "the template has {} vertices, the dataset {}",
-            template.mesh.vertices.len(),
-            data.statics.garment_vertices.len()
-        )));
-    }
+    let (config, cloth) = dataset_cloth(data, template)?;
     let net = run.map(|r| Predictor::open(r, &data.statics)).transpose()?;
-    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
-        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
     let rows = crate::evaluate::first_rows(data, opts.split, opts.samples)?;
     let tris = &data.statics.garment_triangles;
     let mut samples = Vec::with_capacity(rows.len());
+    let mut most_moved: Option<(Row, Vec<Vec3>)> = None;
     for row in &rows {
-        let redrapes = (0..opts.amplitudes.len())
-            .map(|k| {
-                let out = redrape_with(&cloth, &config.sim, model, template, row, opts, k)?;
-                let d = vertex_errors(&out.positions, &row.draped);
-                Ok(Redrape {
-                    amplitude: opts.amplitudes[k],
-                    edist_cm: edist_cm(&out.positions, &row.draped),
-                    enorm_deg: enorm_deg(&out.positions, &row.draped, tris),
-                    max_cm: d.iter().fold(0.0f32, |m, &e| m.max(e)) as f64 * 100.0,
-                    over_1cm: d.iter().filter(|&&e| e > 0.01).count() as f64 / d.len() as f64,
-                    failure: out.report.failure.as_ref().map(|f| f.to_string()),
-                    seconds: out.report.wall_time,
-                })
-            })
-            .collect::<Result<Vec<_>, EvalError>>()?;
+        let mut redrapes = Vec::with_capacity(opts.amplitudes.len());
+        for k in 0..opts.amplitudes.len() {
+            let out = redrape(&cloth, &config.sim, model, template, row, opts, k)?;
+            let d = vertex_errors(&out.positions, &row.draped);
+            let r = Redrape {
+                amplitude: opts.amplitudes[k],
+                edist_cm: mean(d.iter().map(|&e| e as f64)) * 100.0,
+                enorm_deg: enorm_deg(&out.positions, &row.draped, tris),
+                max_cm: d.iter().fold(0.0f32, |m, &e| m.max(e)) as f64 * 100.0,
+                over_1cm: d.iter().filter(|&&e| e > 0.01).count() as f64 / d.len() as f64,
+                failure: out.report.failure.as_ref().map(|f| f.to_string()),
+                seconds: out.report.wall_time,
+            };
+            let moved_most = k == 0
+                && samples
+                    .iter()
+                    .all(|s: &SampleSensitivity| s.redrapes[0].edist_cm <= r.edist_cm);
+            if moved_most {
+                most_moved = Some((row.clone(), out.positions));
+            }
+            redrapes.push(r);
+        }
         let network_cm = net.as_ref().map(|n| {
             let (pred, _) = n.predict_rows(std::slice::from_ref(row));
             edist_cm(&pred[0], &row.draped)
@@ -299,7 +268,6 @@ pub fn measure(
                 .collect();
             let e: Vec<f64> = ok.iter().map(|s| s.redrapes[k].edist_cm).collect();
             let n: Vec<f64> = ok.iter().map(|s| s.redrapes[k].enorm_deg).collect();
-            let over: Vec<f64> = ok.iter().map(|s| s.redrapes[k].over_1cm).collect();
             let net: Vec<f64> = ok.iter().filter_map(|s| s.network_cm).collect();
             AmplitudeSummary {
                 amplitude: a,
@@ -309,12 +277,11 @@ pub fn measure(
                 edist_median_cm: median(e.clone()),
                 edist_max_cm: e.iter().fold(f64::NAN, |m, &x| m.max(x)),
                 enorm_deg: mean_std(&n),
-                over_1cm: mean_std(&over).0,
+                over_1cm: mean(ok.iter().map(|s| s.redrapes[k].over_1cm)),
                 correlation_with_network: pearson(&e, &net),
             }
         })
         .collect();
-    let dqs: Vec<f64> = samples.iter().map(|s| s.dqs_cm).collect();
     let nets: Vec<f64> = samples.iter().filter_map(|s| s.network_cm).collect();
     Ok(SensitivityReport {
         dataset: data.manifest.name.clone(),
@@ -322,9 +289,10 @@ pub fn measure(
         split: opts.split.name().to_string(),
         seed: opts.seed,
         summaries,
-        dqs_cm: mean_std(&dqs).0,
-        network_cm: (!nets.is_empty()).then(|| mean_std(&nets).0),
+        dqs_cm: mean(samples.iter().map(|s| s.dqs_cm)),
+        network_cm: (!nets.is_empty()).then(|| mean(nets)),
         samples,
+        most_moved,
     })
 }
 

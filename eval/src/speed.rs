@@ -186,20 +186,55 @@ pub fn network_drape(
     }
 }
 
-/// The sample's body, rebuilt from its row: shape, pose and the shaped body.
-fn bodies<'m>(
+/// The sample's shape and pose, as its row stores them.
+fn row_body(row: &Row) -> (ShapeParams, Pose) {
+    (
+        ShapeParams::from_named(row.shape),
+        Pose {
+            rotations: row.pose.clone(),
+            root_translation: row.root,
+        },
+    )
+}
+
+/// The body motion of the dataset's drape protocol for a stored sample: from the canonical
+/// body in its rest pose to the row's shape and pose over `frames` frames.
+pub(crate) fn row_morph<'m>(
     model: &'m BodyModel,
     row: &Row,
-) -> Result<(ShapeParams, Pose, ShapedBody<'m>), EvalError> {
-    let shape = ShapeParams::from_named(row.shape);
-    let pose = Pose {
-        rotations: row.pose.clone(),
-        root_translation: row.root,
-    };
-    let shaped = model
-        .shape(&shape)
-        .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))?;
-    Ok((shape, pose, shaped))
+    frames: u32,
+) -> Result<BodyMorph<'m>, EvalError> {
+    let (shape, pose) = row_body(row);
+    BodyMorph::new(model, ShapeParams::default(), shape, pose, frames)
+        .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))
+}
+
+/// The dataset's config and its garment cooked for the dataset's simulator config, after
+/// checking that `template` (built here) is the one the dataset was made with.
+pub(crate) fn dataset_cloth(
+    data: &Dataset,
+    template: &Template,
+) -> Result<(dataset::config::DatasetConfig, ClothModel), EvalError> {
+    let config = data.manifest.dataset_config()?;
+    let ours = &template.mesh.vertices;
+    let theirs = &data.statics.garment_vertices;
+    let drift = ours
+        .iter()
+        .zip(theirs)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max);
+    if ours.len() != theirs.len() || drift > 1e-5 {
+        return Err(EvalError::Invalid(format!(
+            "the {} template built here differs from the one {} was made with (vertices {} and {}, largest offset {drift} m): rebuild the dataset or the template",
+            config.garment,
+            data.dir.display(),
+            ours.len(),
+            theirs.len()
+        )));
+    }
+    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
+        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
+    Ok((config, cloth))
 }
 
 /// Measures the speed-up of the network of `run` on the first samples of `data`'s split.
@@ -212,17 +247,8 @@ pub fn measure(
     opts: &SpeedOptions,
     progress: &mut dyn FnMut(&SampleSpeed),
 ) -> Result<SpeedReport, EvalError> {
-    let config = data.manifest.dataset_config()?;
+    let (config, cloth) = dataset_cloth(data, template)?;
     let net = Predictor::open(run, &data.statics)?;
-    if template.mesh.vertices.len() != data.statics.garment_vertices.len() {
-        return Err(EvalError::Invalid(format!(
-            "the template has {} vertices, the dataset {}",
-            template.mesh.vertices.len(),
-            data.statics.garment_vertices.len()
-        )));
-    }
-    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
-        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
     let canonical = model
         .shape(&ShapeParams::default())
         .map_err(|e| EvalError::Invalid(e.to_string()))?;
@@ -230,16 +256,12 @@ pub fn measure(
     let mut samples = Vec::new();
     let mut bodies_of_rows = Vec::with_capacity(rows.len());
     for row in &rows {
-        let (shape, pose, shaped) = bodies(model, row)?;
+        let (shape, pose) = row_body(row);
+        let shaped = model
+            .shape(&shape)
+            .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))?;
         let posed = shaped.pose(&pose);
-        let motion = BodyMorph::new(
-            model,
-            ShapeParams::default(),
-            shape,
-            pose.clone(),
-            config.sim.morph_frames,
-        )
-        .map_err(|e| EvalError::Invalid(e.to_string()))?;
+        let motion = row_morph(model, row, config.sim.morph_frames)?;
         let full = drape::drape(
             &cloth,
             &template.mesh.vertices,

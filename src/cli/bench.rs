@@ -217,31 +217,6 @@ fn bench_predict(
 }
 
 /// `drape bench speedup`.
-/// Fails unless `template` (built here) is the one the dataset in `dir` was made with.
-pub(crate) fn check_template(
-    template: &sim::garment::Template,
-    data: &dataset::reader::Dataset,
-    garment: &str,
-    dir: &std::path::Path,
-) -> anyhow::Result<()> {
-    let drift = template
-        .mesh
-        .vertices
-        .iter()
-        .zip(&data.statics.garment_vertices)
-        .map(|(a, b)| a.distance(*b))
-        .fold(0.0f32, f32::max);
-    if template.mesh.vertices.len() != data.statics.garment_vertices.len() || drift > 1e-5 {
-        anyhow::bail!(
-            "the {garment} template built here differs from the one {} was made with (vertices {} and {}, largest offset {drift} m): rebuild the dataset or the template",
-            dir.display(),
-            template.mesh.vertices.len(),
-            data.statics.garment_vertices.len()
-        );
-    }
-    Ok(())
-}
-
 fn bench_speedup(
     ctx: &Context,
     run: &std::path::Path,
@@ -257,7 +232,6 @@ fn bench_speedup(
     let dc = data.manifest.dataset_config()?;
     let (model, _, template) =
         dataset::generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
-    check_template(&template, &data, &dc.garment, &dir)?;
     let threads = rayon::current_num_threads();
     println!(
         "{} ({} vertices) from {}; {} test samples of {}; simulator config of the dataset ({} substeps at {} fps); {threads} threads",

@@ -259,9 +259,6 @@ fn sensitivity_run(
 ) -> anyhow::Result<()> {
     use eval::sensitivity::{SensitivityOptions, measure};
     let split = Split::parse(split)?;
-    if samples == 0 {
-        anyhow::bail!("--samples must be at least 1");
-    }
     let opts = SensitivityOptions {
         samples,
         split,
@@ -274,7 +271,6 @@ fn sensitivity_run(
     let dc = data.manifest.dataset_config()?;
     let (model, _, template) =
         generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
-    super::bench::check_template(&template, &data, &dc.garment, dir)?;
     let n = samples.min(data.count(split));
     println!(
         "{} ({}, {} vertices): {n} {} samples redraped {} time(s) each with the dataset's simulator config ({} substeps at {} fps), starting offsets up to {} m; seed {seed}",
@@ -342,26 +338,13 @@ fn sensitivity_run(
         std::fs::write(path, serde_json::to_string_pretty(&report)?)
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
     }
-    if let Some(path) = render {
-        let worst = report
-            .samples
-            .iter()
-            .max_by(|a, b| a.redrapes[0].edist_cm.total_cmp(&b.redrapes[0].edist_cm))
-            .expect("at least one sample");
-        let rows = eval::evaluate::rows_of(&data, split, &[worst.id])?;
-        let row = &rows[0];
-        // Redrape it again (deterministic: the same offsets) to have its positions.
-        let one = SensitivityOptions {
-            samples: 1,
-            ..opts.clone()
-        };
-        let redrape = eval::sensitivity::redrape(&data, &model, &template, row, &one, 0)?;
+    if let (Some(path), Some((row, redrape))) = (render, &report.most_moved) {
         let (img, _) = eval::report::sample_render(
             &row.body,
             &data.statics.body_triangles,
             &data.statics.garment_triangles,
             &row.draped,
-            &redrape,
+            redrape,
             "distance (cm) of the redrape (right) to the drape (left)",
         )?;
         std::fs::write(path, eval::render::encode_png(&img)?)
