@@ -278,6 +278,7 @@ fn sim_drapes_a_garment_from_obj() {
     std::fs::write(&config, "morph_frames = 20\nmax_frames = 300\n").unwrap();
     let out = dir.path().join("drape.obj");
     let png = dir.path().join("drape.png");
+    let strain_png = dir.path().join("strain.png");
     let report = dir.path().join("report.json");
     let o = drape(&[
         "sim",
@@ -291,6 +292,8 @@ fn sim_drapes_a_garment_from_obj() {
         out.to_str().unwrap(),
         "--png",
         png.to_str().unwrap(),
+        "--strain-png",
+        strain_png.to_str().unwrap(),
         "--report",
         report.to_str().unwrap(),
     ]);
@@ -307,6 +310,21 @@ fn sim_drapes_a_garment_from_obj() {
         40 * 21
     );
     assert!(blue_share(&png) > 0.02);
+    // The strain map: the same views, the garment in the colour map's low (blue to green)
+    // end since a converged drape of this loose tube is barely stretched, and a colour bar.
+    assert!(blue_share(&strain_png) > 0.01);
+    let size = |p: &Path| {
+        let r = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(p).unwrap()))
+            .read_info()
+            .unwrap();
+        (r.info().width, r.info().height)
+    };
+    let (map, plain) = (size(&strain_png), size(&png));
+    assert_eq!(map.0, plain.0);
+    assert!(
+        map.1 > plain.1,
+        "no colour bar under the strain map: {map:?} {plain:?}"
+    );
 
     // Warm start from that drape: the body is already posed, the cloth already at rest.
     let warm = dir.path().join("warm.obj");

@@ -94,6 +94,46 @@ fn pinned_hanging_cloth_keeps_edges_within_the_stretch_limit() {
     );
 }
 
+#[test]
+fn vertex_strain_is_the_largest_strain_of_a_vertex_s_edges() {
+    let cloth = primitives::grid(Vec3::ZERO, Vec3::X * 0.4, Vec3::Y * -0.4, 8, 8);
+    let model = ClothModel::new(&cloth, &SimConfig::default(), &[]).unwrap();
+    // At rest: no strain anywhere.
+    let rest = drape::vertex_strain(&model, &cloth.vertices);
+    assert!(rest.iter().all(|s| s.abs() < 1e-6), "{rest:?}");
+    // Scaled by 1.1: every edge, so every vertex, 10% longer.
+    let scaled: Vec<Vec3> = cloth.vertices.iter().map(|p| *p * 1.1).collect();
+    let s = drape::vertex_strain(&model, &scaled);
+    assert!(s.iter().all(|s| (s - 0.1).abs() < 1e-5), "{s:?}");
+    // One particle pulled out of the plane by 5 cm: it and its neighbours show the stretch
+    // of the edges between them, every other vertex none, and the largest value is the
+    // largest edge strain.
+    let k = 4 * 9 + 4;
+    let mut pulled = cloth.vertices.clone();
+    pulled[k].z += 0.05;
+    let s = drape::vertex_strain(&model, &pulled);
+    let neighbours: Vec<usize> = model
+        .edges
+        .iter()
+        .filter_map(|&[a, b]| match (a as usize, b as usize) {
+            (a, b) if a == k => Some(b),
+            (a, b) if b == k => Some(a),
+            _ => None,
+        })
+        .collect();
+    // The grid's diagonals alternate: this vertex is a corner of eight triangles.
+    assert_eq!(neighbours.len(), 8);
+    for (i, v) in s.iter().enumerate() {
+        if i == k || neighbours.contains(&i) {
+            assert!(*v > 0.1, "vertex {i}: {v}");
+        } else {
+            assert!(v.abs() < 1e-6, "vertex {i}: {v}");
+        }
+    }
+    let stats = drape::strain(&model, &pulled);
+    assert!((s.iter().copied().fold(f32::MIN, f32::max) - stats.max).abs() < 1e-6);
+}
+
 /// A 1 x 1 m cloth dropped from 10 cm onto `collider`; returns the model, positions and the
 /// signed distances before the final push-out.
 fn drop_on(collider: &TriMesh, config: &SimConfig, top: f32) -> (ClothModel, drape::DrapeResult) {

@@ -39,6 +39,10 @@ pub struct SimArgs {
     /// Also render the drape on the body (front and side) to this PNG.
     #[arg(long, value_name = "FILE.png")]
     png: Option<PathBuf>,
+    /// Also render a strain map to this PNG: each vertex coloured by the largest strain
+    /// `l / l0 - 1` of its edges, 0 to 10% (the colour bar's scale; more is red).
+    #[arg(long, value_name = "FILE.png")]
+    strain_png: Option<PathBuf>,
     /// Also write the drape report (quality, timings) as JSON.
     #[arg(long, value_name = "FILE.json")]
     report: Option<PathBuf>,
@@ -160,30 +164,32 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
         }
     );
     let obj = draped.to_obj(&header);
-    let png = match &args.png {
-        Some(_) => {
-            let posed = target.pose(&resolved.pose);
-            Some(eval::render::render_png(
-                &[
-                    eval::render::Layer::new(
-                        &posed.vertices,
-                        &model.triangles,
-                        eval::render::BODY_COLOUR,
-                    ),
-                    eval::render::Layer::new(
-                        &draped.vertices,
-                        &draped.triangles,
-                        eval::render::GARMENT_COLOUR,
-                    ),
-                ],
-                &eval::render::RenderOptions::default(),
-            )?)
-        }
-        None => None,
+    let posed = (args.png.is_some() || args.strain_png.is_some())
+        .then(|| target.pose(&resolved.pose).vertices);
+    let png = match (&args.png, &posed) {
+        (Some(_), Some(body)) => Some(eval::render::render_png(
+            &[
+                eval::render::Layer::new(body, &model.triangles, eval::render::BODY_COLOUR),
+                eval::render::Layer::new(
+                    &draped.vertices,
+                    &draped.triangles,
+                    eval::render::GARMENT_COLOUR,
+                ),
+            ],
+            &eval::render::RenderOptions::default(),
+        )?),
+        _ => None,
+    };
+    let strain_png = match (&args.strain_png, &posed) {
+        (Some(_), Some(body)) => Some(strain_map(&cloth, &draped, body, &model.triangles)?),
+        _ => None,
     };
     let json = serde_json::to_string_pretty(r)?;
     let mut files: Vec<(&Path, &[u8])> = vec![(&args.output, obj.as_bytes())];
     if let (Some(p), Some(b)) = (&args.png, &png) {
+        files.push((p, b));
+    }
+    if let (Some(p), Some(b)) = (&args.strain_png, &strain_png) {
         files.push((p, b));
     }
     if let Some(p) = &args.report {
@@ -213,4 +219,47 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
             args.output.display()
         ),
     }
+}
+
+/// Strain shown at the red end of a strain map (a fraction).
+const STRAIN_MAP_MAX: f32 = 0.10;
+
+/// The drape on the body, front and side, each garment vertex coloured by the largest
+/// strain of its edges, with a colour bar in percent.
+fn strain_map(
+    cloth: &ClothModel,
+    draped: &TriMesh,
+    body: &[glam::Vec3],
+    body_triangles: &[[u32; 3]],
+) -> anyhow::Result<Vec<u8>> {
+    use eval::render::{Layer, RenderOptions, error_colour, render};
+    let percent: Vec<f32> = drape::vertex_strain(cloth, &draped.vertices)
+        .iter()
+        .map(|s| s * 100.0)
+        .collect();
+    let colours: Vec<[u8; 3]> = percent
+        .iter()
+        .map(|p| error_colour(p / (STRAIN_MAP_MAX * 100.0)))
+        .collect();
+    let img = render(
+        &[
+            Layer::new(body, body_triangles, eval::render::BODY_COLOUR),
+            Layer::new(
+                &draped.vertices,
+                &draped.triangles,
+                eval::render::GARMENT_COLOUR,
+            )
+            .with_vertex_colours(&colours, &percent),
+        ],
+        &RenderOptions::default(),
+    )?;
+    let bar = eval::plot::colour_bar(
+        (STRAIN_MAP_MAX * 100.0) as f64,
+        "largest edge strain at each vertex (%)",
+        img.width.min(700),
+    );
+    Ok(eval::render::encode_png(&eval::render::stack(
+        &[img, bar],
+        [255, 255, 255],
+    ))?)
 }

@@ -343,6 +343,24 @@ pub fn strain(model: &ClothModel, x: &[Vec3]) -> StrainStats {
     }
 }
 
+/// Per particle, the largest strain `l / l0 - 1` of the edges that meet it (0 for a
+/// particle on no edge): what a strain map colours.
+pub fn vertex_strain(model: &ClothModel, x: &[Vec3]) -> Vec<f32> {
+    let mut s = vec![f32::NEG_INFINITY; model.rest.len()];
+    for &[a, b] in &model.edges {
+        let (a, b) = (a as usize, b as usize);
+        let e = x[a].distance(x[b]) / model.rest[a].distance(model.rest[b]) - 1.0;
+        s[a] = s[a].max(e);
+        s[b] = s[b].max(e);
+    }
+    for v in &mut s {
+        if *v == f32::NEG_INFINITY {
+            *v = 0.0;
+        }
+    }
+    s
+}
+
 /// Consecutive frames in which a particle outruns twice the speed limit that count as an
 /// explosion.
 pub const EXPLOSION_FRAMES: u32 = 3;
