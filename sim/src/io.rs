@@ -77,6 +77,30 @@ fn temp_path(path: &Path, k: usize) -> PathBuf {
     path.with_file_name(format!(".{name}.{}-{k}.tmp", std::process::id()))
 }
 
+/// A named tensor for [`safetensors_bytes`]: name, dtype, shape, little-endian data.
+pub type NamedTensor<'a> = (&'a str, safetensors::Dtype, Vec<usize>, Vec<u8>);
+
+/// Serialises tensors with one metadata entry, `drape`, holding `meta` as JSON. One key
+/// keeps the bytes deterministic (safetensors writes its metadata map in hash order).
+pub fn safetensors_bytes(tensors: &[NamedTensor<'_>], meta: &impl serde::Serialize) -> Vec<u8> {
+    let views: Vec<(&str, safetensors::tensor::TensorView<'_>)> = tensors
+        .iter()
+        .map(|(name, dtype, shape, data)| {
+            (
+                *name,
+                safetensors::tensor::TensorView::new(*dtype, shape.clone(), data)
+                    .expect("sizes match"),
+            )
+        })
+        .collect();
+    let mut info = std::collections::HashMap::new();
+    info.insert(
+        "drape".to_string(),
+        serde_json::to_string(meta).expect("metadata serialises"),
+    );
+    safetensors::tensor::serialize(views, Some(info)).expect("tensors serialise")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -121,28 +145,4 @@ mod tests {
         assert_eq!(fs::read(&a).unwrap(), b"1");
         assert_eq!(fs::read(&b).unwrap(), b"22");
     }
-}
-
-/// A named tensor for [`safetensors_bytes`]: name, dtype, shape, little-endian data.
-pub type NamedTensor<'a> = (&'a str, safetensors::Dtype, Vec<usize>, Vec<u8>);
-
-/// Serialises tensors with one metadata entry, `drape`, holding `meta` as JSON. One key
-/// keeps the bytes deterministic (safetensors writes its metadata map in hash order).
-pub fn safetensors_bytes(tensors: &[NamedTensor<'_>], meta: &impl serde::Serialize) -> Vec<u8> {
-    let views: Vec<(&str, safetensors::tensor::TensorView<'_>)> = tensors
-        .iter()
-        .map(|(name, dtype, shape, data)| {
-            (
-                *name,
-                safetensors::tensor::TensorView::new(*dtype, shape.clone(), data)
-                    .expect("sizes match"),
-            )
-        })
-        .collect();
-    let mut info = std::collections::HashMap::new();
-    info.insert(
-        "drape".to_string(),
-        serde_json::to_string(meta).expect("metadata serialises"),
-    );
-    safetensors::tensor::serialize(views, Some(info)).expect("tensors serialise")
 }

@@ -425,7 +425,7 @@ mod tests {
                 1.0,
             )
         };
-        Sweep::new(&[c(0, 1), c(1, 2)], &[0..2]);
+        Sweep::new(&[c(0, 1), c(1, 2)], std::slice::from_ref(&(0..2)));
     }
 
     #[test]
