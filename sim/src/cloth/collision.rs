@@ -362,7 +362,18 @@ impl BodyCollider {
     /// The closest point on the body (at the end of the frame) to `p`, if it lies within
     /// `radius`.
     pub fn closest(&self, p: Vec3, radius: f32) -> Option<Hit> {
-        let (d2, tri, bary, feature) = self.nearest_candidate(p, radius)?;
+        // A narrow search first: a triangle found at a distance d within the narrow radius
+        // is also the nearest of the wide search (its box meets every query box of half-size
+        // d or more, and ties go to the same lower index), so the wide search, which visits
+        // many more triangles, runs only when nothing is that close.
+        let narrow = (radius > NARROW_RADIUS)
+            .then(|| self.nearest_candidate(p, NARROW_RADIUS))
+            .flatten()
+            .filter(|c| c.0 <= NARROW_RADIUS * NARROW_RADIUS);
+        let (d2, tri, bary, feature) = match narrow {
+            Some(c) => c,
+            None => self.nearest_candidate(p, radius)?,
+        };
         if d2 > radius * radius {
             return None;
         }
@@ -418,6 +429,9 @@ impl BodyCollider {
         self.closest(p, radius).map(|h| h.distance)
     }
 }
+
+/// Radius of [`BodyCollider::closest`]'s first, narrow search (m).
+const NARROW_RADIUS: f32 = 0.01;
 
 /// Moeller-Trumbore: does the ray `origin + t dir`, t > 0, cross the triangle?
 fn ray_hits_triangle(origin: Vec3, dir: Vec3, a: Vec3, b: Vec3, c: Vec3) -> bool {

@@ -16,7 +16,7 @@ use std::time::Instant;
 use glam::Vec3;
 use serde::Serialize;
 
-use super::collision::BodyCollider;
+use super::collision::{BodyCollider, Hit};
 use super::model::ClothModel;
 use super::solver::{Solver, StageTimes};
 use super::{SimConfig, SimError};
@@ -374,14 +374,25 @@ const VERIFY_RADIUS: f32 = 0.05;
 /// Particles inside the body, at any depth: inside by ray parity, depth from the nearest
 /// surface point within 5 cm (deeper ones count with a depth of at least 5 cm).
 pub fn penetration(body: &BodyCollider, x: &[Vec3]) -> PenetrationStats {
-    let depths: Vec<f32> = x
-        .iter()
-        .filter_map(|p| match body.signed_distance(*p, VERIFY_RADIUS) {
-            Some(d) if d < 0.0 => Some(-d),
-            Some(_) => None,
-            None => body.inside(*p).then_some(VERIFY_RADIUS),
-        })
-        .collect();
+    penetration_stats(
+        x.iter()
+            .filter_map(|p| depth(body, *p, body.closest(*p, VERIFY_RADIUS).as_ref())),
+    )
+}
+
+/// How deep `p` is inside the body (`None` outside), given its nearest surface point within
+/// [`VERIFY_RADIUS`] (`hit`, if any): as [`penetration`] counts it.
+fn depth(body: &BodyCollider, p: Vec3, hit: Option<&Hit>) -> Option<f32> {
+    match hit.map(|h| h.distance) {
+        Some(d) if d < 0.0 => Some(-d),
+        Some(_) => None,
+        None => body.inside(p).then_some(VERIFY_RADIUS),
+    }
+}
+
+/// Count, largest and mean of `depths` (summed in the order given).
+fn penetration_stats(depths: impl Iterator<Item = f32>) -> PenetrationStats {
+    let depths: Vec<f32> = depths.collect();
     PenetrationStats {
         count: depths.len(),
         max_depth: depths.iter().copied().fold(0.0, f32::max),
@@ -391,6 +402,44 @@ pub fn penetration(body: &BodyCollider, x: &[Vec3]) -> PenetrationStats {
             depths.iter().sum::<f32>() / depths.len() as f32
         },
     }
+}
+
+/// The final pass: pushes particles found inside the body out to `thickness` along the
+/// nearest surface point's pseudo-normal; returns the penetrations before and after. Each
+/// particle's nearest surface point is searched once (on rayon's threads if `parallel`),
+/// and again after the push only for the particles pushed.
+fn push_out(
+    body: &BodyCollider,
+    x: &mut [Vec3],
+    thickness: f32,
+    parallel: bool,
+) -> (PenetrationStats, PenetrationStats) {
+    use rayon::prelude::*;
+    let hits: Vec<Option<Hit>> = if parallel {
+        x.par_iter()
+            .map(|p| body.closest(*p, VERIFY_RADIUS))
+            .collect()
+    } else {
+        x.iter().map(|p| body.closest(*p, VERIFY_RADIUS)).collect()
+    };
+    let before: Vec<Option<f32>> = x
+        .iter()
+        .zip(&hits)
+        .map(|(p, h)| depth(body, *p, h.as_ref()))
+        .collect();
+    let mut after = before.clone();
+    for ((p, hit), after) in x.iter_mut().zip(&hits).zip(after.iter_mut()) {
+        if let Some(hit) = hit
+            && hit.distance < 0.0
+        {
+            *p = hit.point + hit.normal * thickness;
+            *after = depth(body, *p, body.closest(*p, VERIFY_RADIUS).as_ref());
+        }
+    }
+    (
+        penetration_stats(before.into_iter().flatten()),
+        penetration_stats(after.into_iter().flatten()),
+    )
 }
 
 /// Checks that a garment is placed around a body: at least 30% of its particles within
@@ -518,24 +567,10 @@ pub fn drape(
     let t = Instant::now();
     let mut x = solver.positions();
     let finite = x.iter().all(|p| p.is_finite());
-    let before = if finite {
-        penetration(&body, &x)
+    let (before, after) = if finite {
+        push_out(&body, &mut x, config.thickness, parallel)
     } else {
-        PenetrationStats::default()
-    };
-    if finite {
-        for p in x.iter_mut() {
-            if let Some(hit) = body.closest(*p, VERIFY_RADIUS)
-                && hit.distance < 0.0
-            {
-                *p = hit.point + hit.normal * config.thickness;
-            }
-        }
-    }
-    let after = if finite {
-        penetration(&body, &x)
-    } else {
-        PenetrationStats::default()
+        Default::default()
     };
     let verify_time = t.elapsed().as_secs_f64();
     if failure.is_none() && after.count > 0 && after.max_depth > config.max_penetration {
@@ -579,5 +614,49 @@ pub fn drape(
     DrapeResult {
         positions: x,
         report,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::primitives;
+
+    #[test]
+    fn push_out_reuses_searches_and_counts_as_penetration_does() {
+        let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 48, 24);
+        let body = BodyCollider::new(&sphere.vertices, &sphere.triangles, 0.01);
+        // Points on rays from the centre at depths from 8 cm inside to 8 cm outside: some
+        // beyond the 5 cm search (deep inside: found by ray parity; far outside: none).
+        let x0: Vec<Vec3> = (0..200)
+            .map(|k| {
+                let t = k as f32;
+                let dir =
+                    Vec3::new((t * 0.37).sin(), (t * 0.91).cos(), (t * 0.53).sin()).normalize();
+                dir * (0.3 + 0.08 * ((t * 0.61).sin()))
+            })
+            .collect();
+        for parallel in [false, true] {
+            let mut x = x0.clone();
+            let (before, after) = push_out(&body, &mut x, 0.003, parallel);
+            assert_eq!(before, penetration(&body, &x0));
+            assert_eq!(after, penetration(&body, &x));
+            assert!(
+                before.count > 40 && before.max_depth == VERIFY_RADIUS,
+                "{before:?}"
+            );
+            // Pushed: those within 5 cm inside, to 3 mm outside; deeper ones stay inside.
+            let deep = x0
+                .iter()
+                .filter(|p| p.length() < 0.3 - VERIFY_RADIUS)
+                .count();
+            assert!(deep > 0);
+            assert_eq!(after.count, deep, "{after:?}");
+            for (p, q) in x0.iter().zip(&x) {
+                if p != q {
+                    assert!((q.length() - 0.303).abs() < 2e-3, "{p} -> {q}");
+                }
+            }
+        }
     }
 }
