@@ -95,6 +95,52 @@ fn pinned_hanging_cloth_keeps_edges_within_the_stretch_limit() {
 }
 
 #[test]
+fn cloth_resting_on_a_sphere_that_sinks_and_stops_comes_to_rest() {
+    // A small cloth settles on a sphere for 110 frames; the sphere then sinks by 2 mm a
+    // frame for 10 frames, the cloth following, and stands still. Contacts found in its
+    // last moving frame are kept while it stands still (the particles moved less than the
+    // reuse slack); they must not replay that frame's motion, which pushed the cloth up at
+    // the start of every frame (in the garments' drapes, particles bounced off the body at
+    // half the frame rate and the drape never came to rest).
+    let config = SimConfig::default();
+    let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 48, 24);
+    let cloth = primitives::grid(
+        Vec3::new(-0.2, 0.304, -0.2),
+        Vec3::X * 0.4,
+        Vec3::Z * 0.4,
+        20,
+        20,
+    );
+    let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+    let v0 = sphere.vertices.clone();
+    let motion = FnMotion {
+        frames: 120,
+        at: move |k| {
+            let sunk = 0.002 * k.saturating_sub(110) as f32;
+            v0.iter().map(|v| *v - Vec3::Y * sunk).collect()
+        },
+        triangles: sphere.triangles.clone(),
+    };
+    let mut settling_max = 0.0f32;
+    let d = drape::drape(&model, &cloth.vertices, &motion, &config, false, &mut |p| {
+        if !p.morphing {
+            settling_max = settling_max.max(p.max_displacement);
+        }
+    });
+    assert!(d.report.converged, "{:?}", d.report.failure);
+    // Once the sphere stops, the cloth only slows down: no frame moves it more than the
+    // sinking did (2 mm a frame, up to 6 mm with the cloth catching up). With the motion
+    // replayed, frames moved it 15 to 43 mm.
+    assert!(
+        settling_max < 0.008,
+        "a settling frame moved {settling_max} m"
+    );
+    // At rest on the sphere, whose top is now at 0.28 m.
+    let top = d.positions.iter().map(|p| p.y).fold(f32::MIN, f32::max);
+    assert!((0.28..0.29).contains(&top), "top of the cloth at {top} m");
+}
+
+#[test]
 fn vertex_strain_is_the_largest_strain_of_a_vertex_s_edges() {
     let cloth = primitives::grid(Vec3::ZERO, Vec3::X * 0.4, Vec3::Y * -0.4, 8, 8);
     let model = ClothModel::new(&cloth, &SimConfig::default(), &[]).unwrap();

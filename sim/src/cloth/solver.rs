@@ -196,6 +196,14 @@ impl<'m> Solver<'m> {
                 Some(_) => moved <= 0.5 * margin,
             };
             if still && keep {
+                // A kept contact may come from a frame in which the body moved; its plane
+                // must not replay that motion in every frame of a still body (it kicked
+                // resting particles off the body at each frame's start, and they bounced at
+                // half the frame rate: the drapes that never came to rest).
+                if let Some(p) = &mut state.plane {
+                    p.q0 = p.q1;
+                    p.n0 = p.n1;
+                }
                 return;
             }
             let radius = thickness + travel;
