@@ -167,17 +167,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     let posed = (args.png.is_some() || args.strain_png.is_some())
         .then(|| target.pose(&resolved.pose).vertices);
     let png = match (&args.png, &posed) {
-        (Some(_), Some(body)) => Some(eval::render::render_png(
-            &[
-                eval::render::Layer::new(body, &model.triangles, eval::render::BODY_COLOUR),
-                eval::render::Layer::new(
-                    &draped.vertices,
-                    &draped.triangles,
-                    eval::render::GARMENT_COLOUR,
-                ),
-            ],
-            &eval::render::RenderOptions::default(),
-        )?),
+        (Some(_), Some(body)) => Some(super::garment::render(body, &model, &draped)?),
         _ => None,
     };
     let strain_png = match (&args.strain_png, &posed) {
