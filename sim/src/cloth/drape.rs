@@ -319,16 +319,23 @@ pub struct Progress {
     pub kinetic_energy: f32,
 }
 
+/// Each mesh edge's particles and its strain `l / l0 - 1` at positions `x`.
+fn edge_strains<'a>(
+    model: &'a ClothModel,
+    x: &'a [Vec3],
+) -> impl Iterator<Item = ([usize; 2], f32)> + 'a {
+    model.edges.iter().map(|&[a, b]| {
+        let (a, b) = (a as usize, b as usize);
+        (
+            [a, b],
+            x[a].distance(x[b]) / model.rest[a].distance(model.rest[b]) - 1.0,
+        )
+    })
+}
+
 /// Edge strain statistics of positions `x`.
 pub fn strain(model: &ClothModel, x: &[Vec3]) -> StrainStats {
-    let mut s: Vec<f32> = model
-        .edges
-        .iter()
-        .map(|&[a, b]| {
-            let (a, b) = (a as usize, b as usize);
-            x[a].distance(x[b]) / model.rest[a].distance(model.rest[b]) - 1.0
-        })
-        .collect();
+    let mut s: Vec<f32> = edge_strains(model, x).map(|(_, e)| e).collect();
     if s.is_empty() {
         return StrainStats::default();
     }
@@ -347,9 +354,7 @@ pub fn strain(model: &ClothModel, x: &[Vec3]) -> StrainStats {
 /// particle on no edge): what a strain map colours.
 pub fn vertex_strain(model: &ClothModel, x: &[Vec3]) -> Vec<f32> {
     let mut s = vec![f32::NEG_INFINITY; model.rest.len()];
-    for &[a, b] in &model.edges {
-        let (a, b) = (a as usize, b as usize);
-        let e = x[a].distance(x[b]) / model.rest[a].distance(model.rest[b]) - 1.0;
+    for ([a, b], e) in edge_strains(model, x) {
         s[a] = s[a].max(e);
         s[b] = s[b].max(e);
     }

@@ -95,6 +95,15 @@ impl Prepared {
         let n = d * ((target - len) / len);
         (n * self.share_i, n * -self.share_j)
     }
+
+    /// Solves the constraint once, moving its two particles in `x`.
+    #[inline]
+    pub fn apply(&self, x: &mut [Vec3A]) {
+        let (i, j) = (self.i as usize, self.j as usize);
+        let (di, dj) = self.solve(x[i], x[j]);
+        x[i] += di;
+        x[j] += dj;
+    }
 }
 
 /// Four constraints of one colour (no particle in common), prepared to be solved together:
@@ -131,6 +140,20 @@ impl Batch {
             max: lanes(|c| c.max),
             share_i: lanes(|c| c.share_i),
             share_j: lanes(|c| c.share_j),
+        }
+    }
+
+    /// The constraint of lane `l`.
+    fn lane(&self, l: usize) -> Prepared {
+        Prepared {
+            i: self.i[l],
+            j: self.j[l],
+            rest: self.rest[l],
+            k: self.k[l],
+            min: self.min[l],
+            max: self.max[l],
+            share_i: self.share_i[l],
+            share_j: self.share_j[l],
         }
     }
 }
@@ -199,10 +222,7 @@ impl Sweep {
                 solve_batch(b, x);
             }
             for c in &self.singles[singles.clone()] {
-                let (i, j) = (c.i as usize, c.j as usize);
-                let (di, dj) = c.solve(x[i], x[j]);
-                x[i] += di;
-                x[j] += dj;
+                c.apply(x);
             }
         }
     }
@@ -215,20 +235,7 @@ fn solve_batch(b: &Batch, x: &mut [Vec3A]) {
     if len2.cmplt(Vec4::splat(1e-24)).any() {
         // As `Prepared::solve`: no correction for a constraint of zero length.
         for l in 0..4 {
-            let c = Prepared {
-                i: b.i[l],
-                j: b.j[l],
-                rest: b.rest[l],
-                k: b.k[l],
-                min: b.min[l],
-                max: b.max[l],
-                share_i: b.share_i[l],
-                share_j: b.share_j[l],
-            };
-            let (i, j) = (c.i as usize, c.j as usize);
-            let (di, dj) = c.solve(x[i], x[j]);
-            x[i] += di;
-            x[j] += dj;
+            b.lane(l).apply(x);
         }
         return;
     }
