@@ -28,6 +28,8 @@ pub struct ClothModel {
     pub distance: Vec<Distance>,
     /// Ranges of `distance` with one colour each.
     pub distance_colours: Vec<Range<usize>>,
+    /// What each of `distance` models.
+    pub distance_kind: Vec<Kind>,
     /// Number of distance constraints of each kind: stretch, shear, bend.
     pub kind_counts: [usize; 3],
     /// Dihedral bending constraints, sorted by colour (empty unless enabled).
@@ -214,6 +216,7 @@ impl ClothModel {
         let mut order: Vec<usize> = (0..constraints.len()).collect();
         order.sort_by_key(|&k| (colours[k], constraints[k].0.i.min(constraints[k].0.j)));
         let distance: Vec<Distance> = order.iter().map(|&k| constraints[k].0).collect();
+        let distance_kind: Vec<Kind> = order.iter().map(|&k| constraints[k].1).collect();
         let distance_colours = colour_ranges(
             &order.iter().map(|&k| colours[k]).collect::<Vec<_>>(),
             count,
@@ -257,6 +260,7 @@ impl ClothModel {
             edges,
             distance,
             distance_colours,
+            distance_kind,
             kind_counts,
             dihedral,
             dihedral_colours,

@@ -26,7 +26,7 @@ use serde::Serialize;
 use super::SimConfig;
 use super::collision::BodyCollider;
 use super::constraints::dihedral;
-use super::constraints::distance::{Prepared, Sweep};
+use super::constraints::distance::{Kind, Prepared, Sweep};
 use super::model::ClothModel;
 
 /// A contact's point and pseudo-normal at the start and end of a frame (the point moves
@@ -125,8 +125,12 @@ pub struct Solver<'m> {
     /// The movable particles with a contact this frame, in index order, and their
     /// contacts: what the collision stage visits every substep.
     active: Vec<(u32, Plane)>,
-    /// Distance constraints prepared for this substep length, in colour order.
+    /// Distance constraints solved every substep, prepared for its length, in colour
+    /// order: all of them if shear and bending run at the full rate, else the stretch ones.
     sweep: Sweep,
+    /// Shear and bending constraints solved every `shear_bend_interval`-th substep,
+    /// prepared for that longer step (empty if they are in `sweep`).
+    slow: Sweep,
     self_grid: super::self_collision::SelfCollision,
 }
 
@@ -146,7 +150,19 @@ impl<'m> Solver<'m> {
         assert_eq!(x.len(), model.len());
         let x: Vec<Vec3A> = x.into_iter().map(Vec3A::from).collect();
         let n = x.len();
+        let h = config.substep_dt();
+        let interval = config.shear_bend_interval();
+        let (sweep, slow) = if interval == 1 {
+            (prepare(model, h, |_| true), Sweep::default())
+        } else {
+            (
+                prepare(model, h, |k| k == Kind::Stretch),
+                prepare(model, h * interval as f32, |k| k != Kind::Stretch),
+            )
+        };
         Self {
+            sweep,
+            slow,
             model,
             config: config.clone(),
             v: vec![Vec3A::ZERO; n],
@@ -158,16 +174,6 @@ impl<'m> Solver<'m> {
             substeps_run: 0,
             contacts: vec![ContactState::default(); n],
             active: Vec::new(),
-            sweep: {
-                let h = config.substep_dt();
-                let w = &model.inv_mass;
-                let prepared: Vec<Prepared> = model
-                    .distance
-                    .iter()
-                    .map(|c| Prepared::new(c, w[c.i as usize], w[c.j as usize], 1.0 / (h * h)))
-                    .collect();
-                Sweep::new(&prepared, &model.distance_colours)
-            },
             self_grid: super::self_collision::SelfCollision::new(model, config.self_distance),
         }
     }
@@ -234,7 +240,9 @@ impl<'m> Solver<'m> {
         let g = Vec3A::from(c.gravity());
         let vmax = c.max_velocity;
         let damp = (-c.damping * h).exp();
-        let inv_h2 = 1.0 / (h * h);
+        let interval = c.shear_bend_interval();
+        let h_slow = h * interval as f32;
+        let inv_h2_slow = 1.0 / (h_slow * h_slow);
         for s in 0..c.substeps {
             // 2.1 predict
             let t = Instant::now();
@@ -261,8 +269,13 @@ impl<'m> Solver<'m> {
             // 2.2 solve
 
             let t = Instant::now();
+            if s % interval == 0 {
+                // Shear and bending first, so the stretch sweep has the last word before
+                // the contacts.
+                self.slow.run(&mut self.x);
+                self.solve_dihedral(inv_h2_slow);
+            }
             self.solve_distance();
-            self.solve_dihedral(inv_h2);
             self.times.solve += t.elapsed().as_secs_f64();
 
             // 2.3 collide
@@ -372,4 +385,28 @@ impl<'m> Solver<'m> {
             }
         }
     }
+}
+
+/// The distance constraints of `model` whose kind passes `keep`, prepared for substeps of
+/// length `h` and grouped for the sweep (a colour's subset is still independent).
+fn prepare(model: &ClothModel, h: f32, keep: impl Fn(Kind) -> bool) -> Sweep {
+    let w = &model.inv_mass;
+    let mut prepared = Vec::with_capacity(model.distance.len());
+    let mut colours = Vec::with_capacity(model.distance_colours.len());
+    for range in &model.distance_colours {
+        let start = prepared.len();
+        for k in range.clone() {
+            if keep(model.distance_kind[k]) {
+                let c = &model.distance[k];
+                prepared.push(Prepared::new(
+                    c,
+                    w[c.i as usize],
+                    w[c.j as usize],
+                    1.0 / (h * h),
+                ));
+            }
+        }
+        colours.push(start..prepared.len());
+    }
+    Sweep::new(&prepared, &colours)
 }

@@ -299,6 +299,7 @@ pub fn build(
     };
     let relax_config = SimConfig {
         substeps: config.substeps.max(RELAX_SUBSTEPS),
+        shear_bend_substeps: None,
         max_frames: config.max_frames.max(RELAX_MAX_FRAMES),
         damping: config.damping.max(RELAX_DAMPING),
         ..config.clone()
