@@ -6,7 +6,9 @@
 //!    still and the particle stays inside that search's slack;
 //! 2. for each substep (`h = frame / substeps`):
 //!    1. **predict**: `v += g h`, clamp the speed, `x += v h`;
-//!    2. **solve**: one Gauss-Seidel sweep over the constraint colours (XPBD);
+//!    2. **solve**: one Gauss-Seidel sweep over the constraint colours (XPBD); with
+//!       `shear_bend_substeps` set, shear and bending only every few substeps and the
+//!       stretch constraints every substep; `stretch_iterations` - 1 more stretch sweeps;
 //!    3. **collide**: push particles out of the body interpolated to the substep's time,
 //!       along the contact's pseudo-normal, then apply Coulomb friction;
 //!    4. **velocities**: `v = (x - x_before) / h`, damped by `exp(-damping h)`;
@@ -131,6 +133,9 @@ pub struct Solver<'m> {
     /// Shear and bending constraints solved every `shear_bend_interval`-th substep,
     /// prepared for that longer step (empty if they are in `sweep`).
     slow: Sweep,
+    /// The stretch constraints alone, for the sweeps after the first of a substep when
+    /// `stretch_iterations` > 1 and `sweep` holds every constraint (else empty).
+    stretch_only: Sweep,
     self_grid: super::self_collision::SelfCollision,
 }
 
@@ -160,9 +165,15 @@ impl<'m> Solver<'m> {
                 prepare(model, h * interval as f32, |k| k != Kind::Stretch),
             )
         };
+        let stretch_only = if config.stretch_iterations > 1 && interval == 1 {
+            prepare(model, h, |k| k == Kind::Stretch)
+        } else {
+            Sweep::default()
+        };
         Self {
             sweep,
             slow,
+            stretch_only,
             model,
             config: config.clone(),
             v: vec![Vec3A::ZERO; n],
@@ -276,6 +287,13 @@ impl<'m> Solver<'m> {
                 self.solve_dihedral(inv_h2_slow);
             }
             self.solve_distance();
+            for _ in 1..c.stretch_iterations {
+                if interval == 1 {
+                    self.stretch_only.run(&mut self.x);
+                } else {
+                    self.sweep.run(&mut self.x);
+                }
+            }
             self.times.solve += t.elapsed().as_secs_f64();
 
             // 2.3 collide
