@@ -139,9 +139,16 @@ impl Manifest {
         }
     }
 
-    /// The config back.
+    /// The config back. A simulator config written before `stretch_iterations` existed
+    /// ran one stretch sweep per substep, so a manifest without the field reads as 1, not
+    /// as today's default.
     pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
-        serde_json::from_value(self.config.clone())
+        let mut config = self.config.clone();
+        if let Some(sim) = config.get_mut("sim").and_then(|s| s.as_object_mut()) {
+            sim.entry("stretch_iterations")
+                .or_insert(serde_json::Value::from(1));
+        }
+        serde_json::from_value(config)
             .map_err(|e| crate::DatasetError::Invalid(format!("manifest config: {e}")))
     }
 
@@ -191,5 +198,30 @@ impl Manifest {
             *m.entry(key).or_default() += 1;
         }
         m
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_manifest_from_before_stretch_iterations_reads_as_one_sweep() {
+        let config = DatasetConfig::from_toml(
+            "name = \"t\"\ngarment = \"tshirt\"\nresolution = 3000\nseed = 1\nposes_per_body = 1\n\
+             [bodies]\ntrain = 1\nval = 1\ntest = 1\n[sim]\nstretch_iterations = 3\n",
+            std::path::Path::new("t.toml"),
+        )
+        .unwrap();
+        let mut m = Manifest::new(&config, GenOptions::default(), String::new(), Vec::new());
+        assert_eq!(m.dataset_config().unwrap().sim.stretch_iterations, 3);
+        // As written by earlier versions: no such field.
+        m.config["sim"]
+            .as_object_mut()
+            .unwrap()
+            .remove("stretch_iterations");
+        let back = m.dataset_config().unwrap();
+        assert_eq!(back.sim.stretch_iterations, 1);
+        assert_eq!(back.sim.substeps, config.sim.substeps);
     }
 }

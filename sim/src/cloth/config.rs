@@ -33,11 +33,13 @@ pub struct SimConfig {
     /// field keep their hashes.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub shear_bend_substeps: Option<u32>,
-    /// Stretch sweeps per substep (default 1): the ones after the first solve the stretch
+    /// Stretch sweeps per substep (default 5): the ones after the first solve the stretch
     /// constraints alone again, each the same projection, so the stretch ends stiffer than
     /// its compliance says (the intent: a stiff membrane whose sag one sweep per substep
     /// cannot remove). Unlike more substeps, every substep stays the same, so a resting
-    /// cloth keeps a fixed point. Left out of the serialised config at 1.
+    /// cloth keeps a fixed point. Left out of the serialised config at 1, so a config
+    /// pinned to 1 keeps the hash it had before the field; a manifest without it (all
+    /// written before the field) reads as 1 (`Manifest::dataset_config`).
     #[serde(skip_serializing_if = "is_one")]
     pub stretch_iterations: u32,
     /// Gravity (m/s^2, default (0, -9.81, 0)).
@@ -96,7 +98,7 @@ impl Default for SimConfig {
             fps: 60.0,
             substeps: 10,
             shear_bend_substeps: None,
-            stretch_iterations: 1,
+            stretch_iterations: 5,
             gravity: [0.0, -9.81, 0.0],
             damping: 2.0,
             max_velocity: 5.0,

@@ -300,6 +300,9 @@ pub fn build(
     let relax_config = SimConfig {
         substeps: config.substeps.max(RELAX_SUBSTEPS),
         shear_bend_substeps: None,
+        // The templates were relaxed with one stretch sweep per substep; their 30 substeps
+        // already remove the sag.
+        stretch_iterations: 1,
         max_frames: config.max_frames.max(RELAX_MAX_FRAMES),
         damping: config.damping.max(RELAX_DAMPING),
         ..config.clone()
