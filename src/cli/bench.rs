@@ -234,14 +234,13 @@ fn bench_speedup(
         dataset::generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
     let threads = rayon::current_num_threads();
     println!(
-        "{} ({} vertices) from {}; {} test samples of {}; simulator config of the dataset ({} substeps at {} fps); {threads} threads",
+        "{} ({} vertices) from {}; {} test samples of {}; simulator config of the dataset ({}); {threads} threads",
         dc.garment,
         template.mesh.vertices.len(),
         run.display(),
         samples.max(1).min(data.count(dataset::config::Split::Test)),
         dc.name,
-        dc.sim.substeps,
-        dc.sim.fps
+        dc.sim.stepping()
     );
     println!(
         "{:>8} {:>9} {:>7} {:>10} {:>7} {:>9} {:>10} {:>11} {:>10}",
@@ -415,15 +414,14 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     let prior = dataset::sampling::PosePrior::new(library);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!(
-        "{garment}: {} particles, {} triangles, constraints stretch/shear/bend {}/{}/{}, {} colours; {} substeps at {} fps, morph {} frames",
+        "{garment}: {} particles, {} triangles, constraints stretch/shear/bend {}/{}/{}, {} colours; {}, morph {} frames",
         cloth.len(),
         tube.triangles.len(),
         cloth.kind_counts[0],
         cloth.kind_counts[1],
         cloth.kind_counts[2],
         cloth.distance_colours.len(),
-        config.substeps,
-        config.fps,
+        config.stepping(),
         config.morph_frames
     );
     println!(

@@ -273,14 +273,13 @@ fn sensitivity_run(
         generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
     let n = samples.min(data.count(split));
     println!(
-        "{} ({}, {} vertices): {n} {} samples redraped {} time(s) each with the dataset's simulator config ({} substeps at {} fps), starting offsets up to {} m; seed {seed}",
+        "{} ({}, {} vertices): {n} {} samples redraped {} time(s) each with the dataset's simulator config ({}), starting offsets up to {} m; seed {seed}",
         dc.name,
         dc.garment,
         template.mesh.vertices.len(),
         split.name(),
         amplitudes.len(),
-        dc.sim.substeps,
-        dc.sim.fps,
+        dc.sim.stepping(),
         amplitudes
             .iter()
             .map(|a| format!("{a:e}"))

@@ -416,7 +416,7 @@ fn check(
             .collect()
     };
     println!(
-        "{name}: {} vertices, {} drapes ({}), {} substeps, both cores across drapes",
+        "{name}: {} vertices, {} drapes ({}), {}, both cores across drapes",
         t.len(),
         cases.len(),
         if corners {
@@ -424,7 +424,7 @@ fn check(
         } else {
             "sampled bodies and poses"
         },
-        config.substeps
+        config.stepping()
     );
     let bar = indicatif::ProgressBar::new(cases.len() as u64).with_style(
         indicatif::ProgressStyle::with_template(

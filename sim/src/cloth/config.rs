@@ -163,6 +163,29 @@ impl SimConfig {
         1.0 / (self.fps * self.substeps as f32)
     }
 
+    /// The time stepping in words, for headers: "10 substeps at 60 fps, 5 stretch sweeps
+    /// each" (and the shear and bending rate when set).
+    pub fn stepping(&self) -> String {
+        let mut s = format!(
+            "{} substeps at {} fps, {} stretch sweep{} each",
+            self.substeps,
+            self.fps,
+            self.stretch_iterations,
+            if self.stretch_iterations == 1 {
+                ""
+            } else {
+                "s"
+            }
+        );
+        if self.shear_bend_interval() > 1 {
+            s += &format!(
+                ", shear and bending every {} substeps",
+                self.shear_bend_interval()
+            );
+        }
+        s
+    }
+
     /// Substeps from one shear and bending solve to the next (1 unless
     /// `shear_bend_substeps` is set below `substeps`).
     pub fn shear_bend_interval(&self) -> u32 {
