@@ -413,13 +413,11 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     let cloth = ClothModel::new(&tube, &config, &[])?;
     let prior = dataset::sampling::PosePrior::new(library);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let [stretch, shear, bend] = cloth.kind_counts();
     println!(
-        "{garment}: {} particles, {} triangles, constraints stretch/shear/bend {}/{}/{}, {} colours; {}, morph {} frames",
+        "{garment}: {} particles, {} triangles, constraints stretch/shear/bend {stretch}/{shear}/{bend}, {} colours; {}, morph {} frames",
         cloth.len(),
         tube.triangles.len(),
-        cloth.kind_counts[0],
-        cloth.kind_counts[1],
-        cloth.kind_counts[2],
         cloth.distance_colours.len(),
         config.stepping(),
         config.morph_frames

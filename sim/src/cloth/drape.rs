@@ -597,12 +597,10 @@ pub fn drape(
         converged: failure.is_none(),
         failure,
         particles: model.len(),
-        constraints: [
-            model.kind_counts[0],
-            model.kind_counts[1],
-            model.kind_counts[2],
-            model.dihedral.len(),
-        ],
+        constraints: {
+            let [stretch, shear, bend] = model.kind_counts();
+            [stretch, shear, bend, model.dihedral.len()]
+        },
         colours: model.distance_colours.len(),
         morph_frames: motion.frames(),
         settle_frames: settle,

@@ -30,8 +30,6 @@ pub struct ClothModel {
     pub distance_colours: Vec<Range<usize>>,
     /// What each of `distance` models.
     pub distance_kind: Vec<Kind>,
-    /// Number of distance constraints of each kind: stretch, shear, bend.
-    pub kind_counts: [usize; 3],
     /// Dihedral bending constraints, sorted by colour (empty unless enabled).
     pub dihedral: Vec<Dihedral>,
     /// Ranges of `dihedral` with one colour each.
@@ -97,6 +95,15 @@ pub fn validate_mesh(mesh: &TriMesh) -> Result<(), String> {
 }
 
 impl ClothModel {
+    /// Number of distance constraints of each kind: stretch, shear, bend.
+    pub fn kind_counts(&self) -> [usize; 3] {
+        let mut n = [0usize; 3];
+        for k in &self.distance_kind {
+            n[*k as usize] += 1;
+        }
+        n
+    }
+
     /// Cooks a cloth from its rest mesh. `pinned` particles get infinite mass.
     pub fn new(mesh: &TriMesh, config: &SimConfig, pinned: &[u32]) -> Result<Self, SimError> {
         config.validate().map_err(|reason| SimError::Config {
@@ -204,11 +211,6 @@ impl ClothModel {
                 kind,
             ));
         }
-        let mut kind_counts = [0usize; 3];
-        for (_, k) in &constraints {
-            kind_counts[*k as usize] += 1;
-        }
-
         // Colour, then sort by colour and, inside a colour, by first particle.
         let refs: Vec<[u32; 2]> = constraints.iter().map(|(c, _)| [c.i, c.j]).collect();
         let slices: Vec<&[u32]> = refs.iter().map(|r| &r[..]).collect();
@@ -261,7 +263,6 @@ impl ClothModel {
             distance,
             distance_colours,
             distance_kind,
-            kind_counts,
             dihedral,
             dihedral_colours,
         })

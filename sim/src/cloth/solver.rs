@@ -287,12 +287,13 @@ impl<'m> Solver<'m> {
                 self.solve_dihedral(inv_h2_slow);
             }
             self.solve_distance();
+            let stretch = if interval == 1 {
+                &self.stretch_only
+            } else {
+                &self.sweep
+            };
             for _ in 1..c.stretch_iterations {
-                if interval == 1 {
-                    self.stretch_only.run(&mut self.x);
-                } else {
-                    self.sweep.run(&mut self.x);
-                }
+                stretch.run(&mut self.x);
             }
             self.times.solve += t.elapsed().as_secs_f64();
 
@@ -408,7 +409,7 @@ impl<'m> Solver<'m> {
 /// The distance constraints of `model` whose kind passes `keep`, prepared for substeps of
 /// length `h` and grouped for the sweep (a colour's subset is still independent).
 fn prepare(model: &ClothModel, h: f32, keep: impl Fn(Kind) -> bool) -> Sweep {
-    let w = &model.inv_mass;
+    let (w, inv_h2) = (&model.inv_mass, 1.0 / (h * h));
     let mut prepared = Vec::with_capacity(model.distance.len());
     let mut colours = Vec::with_capacity(model.distance_colours.len());
     for range in &model.distance_colours {
@@ -416,12 +417,7 @@ fn prepare(model: &ClothModel, h: f32, keep: impl Fn(Kind) -> bool) -> Sweep {
         for k in range.clone() {
             if keep(model.distance_kind[k]) {
                 let c = &model.distance[k];
-                prepared.push(Prepared::new(
-                    c,
-                    w[c.i as usize],
-                    w[c.j as usize],
-                    1.0 / (h * h),
-                ));
+                prepared.push(Prepared::new(c, w[c.i as usize], w[c.j as usize], inv_h2));
             }
         }
         colours.push(start..prepared.len());
