@@ -364,3 +364,29 @@ fn corrupt_assets_are_rejected_with_the_path() {
         .to_string();
     assert!(e.contains("nope.gz") && e.contains("cannot read"), "{e}");
 }
+
+#[test]
+fn girths_are_a_tailors_and_grow_with_weight() {
+    let m = model();
+    let default = m.shape(&ShapeParams::default()).unwrap();
+    let g = default.girths().unwrap();
+    // The default body (measured: chest 0.906, waist 0.696, hips 0.939 m): waist the
+    // narrowest, chest and hips 0.8 to 1.2 m.
+    assert!(g.waist < g.chest && g.waist < g.hips, "{g:?}");
+    for x in [g.chest, g.hips] {
+        assert!((0.8..1.2).contains(&x), "{g:?}");
+    }
+    let heavy = m
+        .shape(&ShapeParams {
+            weight: 0.75,
+            ..Default::default()
+        })
+        .unwrap()
+        .girths()
+        .unwrap();
+    // Heavier: every girth larger (measured at weight 0.75: chest +2.1 cm, waist +4.0 cm).
+    assert!(
+        heavy.chest > g.chest + 0.015 && heavy.waist > g.waist + 0.03 && heavy.hips > g.hips + 0.02,
+        "{heavy:?} vs {g:?}"
+    );
+}

@@ -266,3 +266,117 @@ fn unknown_garments_are_named_in_the_error() {
         "{err}"
     );
 }
+
+#[test]
+fn a_graded_size_is_the_garment_made_for_its_reference_body() {
+    let tshirt = built().iter().find(|t| t.meta.name == "tshirt").unwrap();
+    let def = garment::built_in("tshirt").unwrap();
+    let grading = def.grading.as_ref().expect("the T-shirt is graded");
+    let xl = grading
+        .sizes
+        .iter()
+        .find(|s| s.name == "men-XL-tall")
+        .unwrap();
+    let t = garment::grade(tshirt, &def, xl, model()).unwrap();
+    // Same vertices, faces, skinning: every size feeds the same network.
+    assert_eq!(t.mesh.triangles, tshirt.mesh.triangles);
+    assert_eq!(t.skin, tshirt.skin);
+    assert_eq!(t.reference(), xl.shape);
+    assert_eq!(t.meta.build["relaxed"], true);
+    // Outside its reference body, and bigger than the base: a longer hem and a wider chest.
+    let reference = model().shape(&xl.shape).unwrap();
+    let body = BodyCollider::new(&reference.vertices, &model().triangles, 0.01);
+    let inside = t
+        .mesh
+        .vertices
+        .iter()
+        .filter(|p| body.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0) || body.inside(**p))
+        .count();
+    assert_eq!(inside, 0);
+    let length = |x: &[Vec3]| -> f32 {
+        t.mesh
+            .triangles
+            .iter()
+            .flat_map(|f| (0..3).map(move |k| (f[k], f[(k + 1) % 3])))
+            .map(|(a, b)| x[a as usize].distance(x[b as usize]))
+            .sum()
+    };
+    let grown = length(&t.mesh.vertices) / length(&tshirt.mesh.vertices);
+    assert!((1.05..1.4).contains(&grown), "edge lengths x{grown}");
+    // The warp from the reference body onto itself at rest is the size's template.
+    let rest = reference.pose(&Pose::rest(model().skeleton.len()));
+    let w = t.warp(&reference, &reference, &rest);
+    let worst = w
+        .iter()
+        .zip(&t.mesh.vertices)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-5, "moved {worst} m");
+}
+
+#[test]
+fn a_body_wears_the_size_its_measurements_pick() {
+    let lib = garment::Library::new(&default_assets_dir());
+    let chart = lib.size_chart("tshirt", model()).unwrap().unwrap();
+    assert_eq!(chart.by, ["chest", "waist", "hips", "height"]);
+    let pick =
+        |shape: sim::body::ShapeParams| chart.pick(&model().shape(&shape).unwrap()).unwrap().0;
+    assert_eq!(pick(Default::default()), "M");
+    // The largest body of the default shape range (corner 57) and the smallest (corner 2).
+    let largest = sim::body::ShapeParams {
+        gender: 1.0,
+        weight: 0.75,
+        height: 0.62,
+        proportions: 0.7,
+        muscle: 0.25,
+        ..Default::default()
+    };
+    assert_eq!(pick(largest), "men-XL-tall");
+    let smallest = sim::body::ShapeParams {
+        gender: 0.0,
+        age: 0.8,
+        weight: 0.25,
+        height: 0.35,
+        proportions: 0.3,
+        muscle: 0.25,
+        ..Default::default()
+    };
+    assert_eq!(pick(smallest), "women-S");
+    // A garment that is not graded has no chart; a size it lacks is named in the error.
+    assert!(garment::built_in("tshirt").unwrap().size_names().len() > 1);
+    let e = lib
+        .get_size("tshirt", RESOLUTION, "XXXL", model(), &mut |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("no size \"XXXL\"") && e.contains("men-XL-tall"),
+        "{e}"
+    );
+}
+
+#[test]
+fn bad_gradings_are_rejected() {
+    let base = BUILT_IN[0].1;
+    for (extra, want) in [
+        (
+            "[grading]\nby = [\"bust\"]\nsizes = [{ name = \"L\", shape = { weight = 0.7 } }]\n",
+            "measurements are",
+        ),
+        ("[grading]\nby = [\"chest\"]\nsizes = []\n", "at least one"),
+        (
+            "[grading]\nby = [\"chest\"]\nsizes = [{ name = \"M\", shape = { weight = 0.7 } }]\n",
+            "repeated",
+        ),
+        (
+            "[grading]\nby = [\"chest\"]\nsizes = [{ name = \"L\", shape = { weight = 1.7 } }]\n",
+            "size L",
+        ),
+    ] {
+        let text = match base.find("[grading]") {
+            Some(i) => format!("{}{extra}", &base[..i]),
+            None => format!("{base}\n{extra}"),
+        };
+        let e = garment::GarmentDef::from_toml(&text, "t.toml").unwrap_err();
+        assert!(e.contains(want), "{extra}: {e}");
+    }
+}

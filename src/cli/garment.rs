@@ -96,6 +96,10 @@ enum GarmentCommand {
         /// Only the DQS warps, no drapes (fast: checks the skinning weights).
         #[arg(long)]
         warp_only: bool,
+        /// Drape the base size on every body, even for a garment graded in sizes (by default
+        /// each body wears the size its measurements pick).
+        #[arg(long)]
+        one_size: bool,
         /// Simulator configuration TOML (default: configs/sim/default.toml).
         #[arg(long, value_name = "FILE.toml")]
         config: Option<PathBuf>,
@@ -117,6 +121,78 @@ pub fn template(
     let vertices =
         resolution.unwrap_or_else(|| sim::garment::built_in(name).map_or(10_000, |d| d.vertices));
     Ok(lib.get(name, vertices, model, &mut |msg| eprintln!("{msg}"))?)
+}
+
+/// The sizes of a garment as a command uses them: a graded built-in garment's size chart,
+/// with each size's template loaded (or graded and cached) on first use; a garment that is
+/// not graded, or `one_size`, has just its template.
+pub struct Wardrobe<'m> {
+    library: Library,
+    name: String,
+    vertices: usize,
+    model: &'m BodyModel,
+    chart: Option<sim::garment::SizeChart>,
+    templates: std::collections::BTreeMap<String, Template>,
+}
+
+impl<'m> Wardrobe<'m> {
+    /// The wardrobe of garment `name` at `resolution` (default: the definition's).
+    pub fn new(
+        ctx: &Context,
+        name: &str,
+        resolution: Option<usize>,
+        model: &'m BodyModel,
+        one_size: bool,
+    ) -> anyhow::Result<Self> {
+        let library = Library::new(&ctx.assets);
+        let vertices = resolution
+            .unwrap_or_else(|| sim::garment::built_in(name).map_or(10_000, |d| d.vertices));
+        let chart = if one_size {
+            None
+        } else {
+            library.size_chart(name, model)?
+        };
+        Ok(Self {
+            library,
+            name: name.to_string(),
+            vertices,
+            model,
+            chart,
+            templates: Default::default(),
+        })
+    }
+
+    /// Whether the garment comes in sizes here.
+    pub fn graded(&self) -> bool {
+        self.chart.is_some()
+    }
+
+    /// The size a body of `shape` wears (`M`, the base, for a one-size garment).
+    pub fn size_for(&self, shape: &ShapeParams) -> anyhow::Result<String> {
+        Ok(match &self.chart {
+            None => "M".to_string(),
+            Some(c) => c.pick(&self.model.shape(shape)?)?.0,
+        })
+    }
+
+    /// The template of a size.
+    pub fn get(&mut self, size: &str) -> anyhow::Result<&Template> {
+        if !self.templates.contains_key(size) {
+            let t = if self.chart.is_some() {
+                self.library
+                    .get_size(&self.name, self.vertices, size, self.model, &mut |msg| {
+                        eprintln!("{msg}")
+                    })?
+            } else {
+                self.library
+                    .get(&self.name, self.vertices, self.model, &mut |msg| {
+                        eprintln!("{msg}")
+                    })?
+            };
+            self.templates.insert(size.to_string(), t);
+        }
+        Ok(&self.templates[size])
+    }
 }
 
 /// Renders meshes over a body, front and side.
@@ -248,10 +324,11 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             seed,
             corners,
             warp_only,
+            one_size,
             config,
             report,
         } => check(
-            ctx, &name, resolution, samples, seed, corners, warp_only, config, report,
+            ctx, &name, resolution, samples, seed, corners, warp_only, one_size, config, report,
         ),
         GarmentCommand::Gallery {
             name,
@@ -371,6 +448,7 @@ fn check(
     seed: u64,
     corners: bool,
     warp_only: bool,
+    one_size: bool,
     config: Option<PathBuf>,
     report: Option<PathBuf>,
 ) -> anyhow::Result<()> {
@@ -383,8 +461,8 @@ fn check(
         None => SimConfig::default(),
     };
     let (model, library) = load(ctx)?;
-    let t = template(ctx, name, resolution, &model)?;
-    let cloth = ClothModel::new(&t.mesh, &config, &[])?;
+    let mut wardrobe = Wardrobe::new(ctx, name, resolution, &model, one_size)?;
+    let t = wardrobe.get("M")?.clone();
     let canonical = model.shape(&ShapeParams::default())?;
     let prior = PosePrior::new(library);
     let ranges = ShapeRanges::default();
@@ -415,14 +493,34 @@ fn check(
             })
             .collect()
     };
+    // Each case's size, and each size's template with its cloth model (rest shapes differ).
+    let mut fitted: std::collections::BTreeMap<String, (Template, ClothModel)> = Default::default();
+    let mut sizes = Vec::with_capacity(cases.len());
+    for (_, shape, _) in &cases {
+        let size = wardrobe.size_for(shape)?;
+        if !fitted.contains_key(&size) {
+            let t = wardrobe.get(&size)?.clone();
+            let cloth = ClothModel::new(&t.mesh, &config, &[])?;
+            fitted.insert(size.clone(), (t, cloth));
+        }
+        sizes.push(size);
+    }
     println!(
-        "{name}: {} vertices, {} drapes ({}), {}, both cores across drapes",
+        "{name}: {} vertices, {} drapes ({}), {}, {}, both cores across drapes",
         t.len(),
         cases.len(),
         if corners {
             "corner bodies, rest pose"
         } else {
             "sampled bodies and poses"
+        },
+        if wardrobe.graded() {
+            format!(
+                "sizes {} (by measurements)",
+                fitted.keys().cloned().collect::<Vec<_>>().join(", ")
+            )
+        } else {
+            "one size".to_string()
         },
         config.stepping()
     );
@@ -436,15 +534,19 @@ fn check(
     let t0 = std::time::Instant::now();
     let rows: Vec<anyhow::Result<serde_json::Value>> = cases
         .par_iter()
-        .map(|(label, shape, pose)| {
+        .zip(&sizes)
+        .map(|((label, shape, pose), size)| {
+            let (t, cloth) = &fitted[size];
+            let reference = model.shape(&t.reference())?;
             let target = model.shape(shape)?;
             let posed = target.pose(pose);
-            let warp = t.warp(&canonical, &target, &posed);
+            let warp = t.warp(&reference, &target, &posed);
             let warp_over = overstretched(&t, &warp, 0.3, &|_| true);
             if warp_only {
                 bar.inc(1);
                 return Ok(serde_json::json!({
                     "case": label,
+                    "size": size,
                     "height_m": target.height(),
                     "warp_edges_over_30pct": warp_over,
                     "second_part_warp_edges_over_30pct": second.as_ref().map(|p| {
@@ -452,11 +554,12 @@ fn check(
                     }),
                 }));
             }
-            let d = drape_from_canonical(&model, &cloth, &t, *shape, &pose, &config, false)?;
+            let d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
                 "case": label,
+                "size": size,
                 "height_m": target.height(),
                 "converged": r.converged,
                 "failure": r.failure.as_ref().map(|f| f.to_string()),
@@ -518,12 +621,13 @@ fn check(
         return Ok(());
     }
     println!(
-        "case          height  converged  frames  time    strain p95  max      deepest  warp >30%"
+        "case          size          height  converged  frames  time    strain p95  max      deepest  warp >30%"
     );
     for r in &rows {
         println!(
-            "{:12}  {:.2} m  {:9}  {:6}  {:5.2} s  {:8.2}%  {:6.1}%  {:5.2} mm  {:.2}%",
+            "{:12}  {:12}  {:.2} m  {:9}  {:6}  {:5.2} s  {:8.2}%  {:6.1}%  {:5.2} mm  {:.2}%",
             r["case"].as_str().unwrap_or(""),
+            r["size"].as_str().unwrap_or(""),
             r["height_m"].as_f64().unwrap_or(0.0),
             if r["converged"] == true { "yes" } else { "NO" },
             r["frames"],
@@ -608,9 +712,9 @@ fn gallery(
     use sim::cloth::{ClothModel, SimConfig};
 
     let (model, library) = load(ctx)?;
-    let t = template(ctx, name, resolution, &model)?;
+    let mut wardrobe = Wardrobe::new(ctx, name, resolution, &model, false)?;
+    let t = wardrobe.get("M")?.clone();
     let config = SimConfig::default();
-    let cloth = ClothModel::new(&t.mesh, &config, &[])?;
     let canonical = model.shape(&ShapeParams::default())?;
     let prior = dataset::sampling::PosePrior::new(library);
     let opts = RenderOptions {
@@ -652,13 +756,17 @@ fn gallery(
     for k in 0..samples {
         let s = seed.wrapping_add(k);
         let (shape, pose) = sample(&prior, s);
+        let size = wardrobe.size_for(&shape)?;
+        let sized = wardrobe.get(&size)?;
+        let cloth = ClothModel::new(&sized.mesh, &config, &[])?;
+        let reference = model.shape(&sized.reference())?;
         let target = model.shape(&shape)?;
         let posed = target.pose(&pose.pose);
-        let warp = t.warp(&canonical, &target, &posed);
-        let d = drape_from_canonical(&model, &cloth, &t, shape, &pose.pose, &config, true)?;
+        let warp = sized.warp(&reference, &target, &posed);
+        let d = drape_from_reference(&model, &cloth, sized, shape, &pose.pose, &config, true)?;
         let r = &d.report;
         println!(
-            "row {}: random:{s}, body {:.2} m (gender {:.2}, weight {:.2}), pose {}; DQS warp, then the drape: {}, strain p95 {:.1}%, {:.1} s",
+            "row {}: random:{s}, body {:.2} m (gender {:.2}, weight {:.2}), size {size}, pose {}; DQS warp, then the drape: {}, strain p95 {:.1}%, {:.1} s",
             k + 1,
             target.height(),
             shape.gender,
@@ -690,9 +798,10 @@ fn gallery(
     Ok(())
 }
 
-/// Drapes a template from the canonical body morphing to `shape` and `pose` (the paper's
-/// protocol); `parallel` lets the drape use rayon's threads.
-fn drape_from_canonical(
+/// Drapes a template from the body it is made for (the canonical body, or a size's
+/// reference body) morphing to `shape` and `pose` (the paper's protocol); `parallel` lets
+/// the drape use rayon's threads.
+pub fn drape_from_reference(
     model: &BodyModel,
     cloth: &sim::cloth::ClothModel,
     t: &Template,
@@ -703,7 +812,7 @@ fn drape_from_canonical(
 ) -> anyhow::Result<sim::cloth::DrapeResult> {
     let motion = sim::cloth::drape::BodyMorph::new(
         model,
-        ShapeParams::default(),
+        t.reference(),
         shape,
         pose.clone(),
         config.morph_frames,

@@ -9,6 +9,7 @@ pub mod asset;
 pub mod bvh;
 pub mod import;
 pub mod intersect;
+pub mod measure;
 pub mod pose;
 pub mod shape;
 pub mod skeleton;
@@ -20,6 +21,7 @@ use glam::Vec3;
 
 use crate::mesh::TriMesh;
 pub use asset::{BodyModel, Target};
+pub use measure::Girths;
 pub use pose::{Family, Pose, PoseLibrary};
 pub use shape::ShapeParams;
 pub use skeleton::Skeleton;
@@ -80,6 +82,9 @@ pub enum BodyError {
         /// What is wrong (with the line number where there is one).
         reason: String,
     },
+    /// A body could not be measured.
+    #[error("cannot measure the body: {0}")]
+    Measure(String),
     /// The MakeHuman data given to the importer is incomplete or unexpected.
     #[error("import from {path}: {reason}")]
     Import {

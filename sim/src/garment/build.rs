@@ -266,33 +266,71 @@ pub fn build(
     )?;
     let angles = remesh::angle_stats(&mesh);
 
-    // Clearance from the canonical body.
+    let relaxed = settle(&mut mesh, body, def.clearance, config, relax, &def.name)?;
+    Ok(Built {
+        mesh,
+        edge,
+        angles,
+        relax_frames: relaxed.frames,
+        relaxed: relaxed.converged,
+        relax_strain_p95: relaxed.strain_p95,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// How deep inside the body a vertex may start and still be moved out by [`settle`] (m).
+pub const DEEP_REACH: f32 = 0.1;
+
+/// What [`settle`]'s relaxation did.
+#[derive(Debug, Clone, Copy)]
+pub struct Relaxed {
+    /// Frames it took (0 when not relaxed).
+    pub frames: u32,
+    /// Whether it came to rest.
+    pub converged: bool,
+    /// p95 edge strain of the result against the mesh it started from.
+    pub strain_p95: f32,
+}
+
+/// Steps 4 and 5 of the module docs on a mesh placed around `body` (rest pose): vertices
+/// closer than `clearance` to the body moved out to it, then (if `relax`) the simulator lets
+/// it come to rest there under gravity, with the mesh as given as its rest shape.
+pub fn settle(
+    mesh: &mut TriMesh,
+    body: &ShapedBody<'_>,
+    clearance: f32,
+    config: &SimConfig,
+    relax: bool,
+    name: &str,
+) -> Result<Relaxed, GarmentError> {
+    // Clearance from the body.
     let collider = BodyCollider::new(&body.vertices, &body.model.triangles, config.margin);
     for p in &mut mesh.vertices {
-        if let Some(hit) = collider.closest(*p, def.clearance) {
-            if hit.distance < def.clearance {
-                *p = hit.point + hit.normal * def.clearance;
+        if let Some(hit) = collider.closest(*p, clearance) {
+            if hit.distance < clearance {
+                *p = hit.point + hit.normal * clearance;
             }
         } else if collider.inside(*p) {
+            // Deeper inside (a size graded to a heavier body): out along the closest point.
+            if let Some(hit) = collider.closest(*p, DEEP_REACH) {
+                *p = hit.point + hit.normal * clearance;
+                continue;
+            }
             return Err(GarmentError::Definition(format!(
                 "{}: a vertex lies deep inside the body at {p}; more ease is needed",
-                def.name
+                name
             )));
         }
     }
 
     if !relax {
-        return Ok(Built {
-            mesh,
-            edge,
-            angles,
-            relax_frames: 0,
-            relaxed: false,
-            relax_strain_p95: 0.0,
-            seconds: t0.elapsed().as_secs_f64(),
+        return Ok(Relaxed {
+            frames: 0,
+            converged: false,
+            strain_p95: 0.0,
         });
     }
-    // Relaxation on the canonical body in its rest pose.
+    // Relaxation on the body in its rest pose.
     let still = StaticBody {
         vertices: body.vertices.clone(),
         triangles: body.model.triangles.clone(),
@@ -307,7 +345,7 @@ pub fn build(
         damping: config.damping.max(RELAX_DAMPING),
         ..config.clone()
     };
-    let model = ClothModel::new(&mesh, &relax_config, &[])?;
+    let model = ClothModel::new(mesh, &relax_config, &[])?;
     let d = drape::drape(
         &model,
         &mesh.vertices,
@@ -318,19 +356,15 @@ pub fn build(
     );
     if let Some(f) = &d.report.failure {
         return Err(GarmentError::Definition(format!(
-            "{}: relaxing the template on the canonical body failed: {f}",
-            def.name
+            "{}: relaxing the template on the body failed: {f}",
+            name
         )));
     }
     let strain = drape::strain(&model, &d.positions);
     mesh.vertices = d.positions;
-    Ok(Built {
-        mesh,
-        edge,
-        angles,
-        relax_frames: d.report.settle_frames,
-        relaxed: d.report.converged,
-        relax_strain_p95: strain.p95,
-        seconds: t0.elapsed().as_secs_f64(),
+    Ok(Relaxed {
+        frames: d.report.settle_frames,
+        converged: d.report.converged,
+        strain_p95: strain.p95,
     })
 }

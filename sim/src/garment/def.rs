@@ -7,6 +7,8 @@
 
 use serde::Deserialize;
 
+use crate::body::ShapeParams;
+
 /// A garment definition.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -26,7 +28,44 @@ pub struct GarmentDef {
     /// Clearance kept from the canonical body before relaxing (m, default 0.006).
     #[serde(default = "default_clearance")]
     pub clearance: f32,
+    /// Sizes: the garment graded for other bodies (none: one size, the canonical body's).
+    #[serde(default)]
+    pub grading: Option<GradingDef>,
 }
+
+/// How a garment is graded in sizes, as shops do: each size is the garment made for a
+/// reference body (the template carried to that body's shape with the same ease and relaxed
+/// there), and a body wears the size whose reference body measures closest to its own.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GradingDef {
+    /// Measurements that choose the size: `chest`, `waist`, `hips` (tape girths) and
+    /// `height`; the size whose reference body differs least in relative terms is worn
+    /// (`SizeChart::pick`: a size too small counts more than one too large).
+    pub by: Vec<String>,
+    /// The sizes besides the base one (the canonical body's, named `base`).
+    pub sizes: Vec<SizeDef>,
+    /// Name of the base size (default `M`).
+    #[serde(default = "default_base_size")]
+    pub base: String,
+}
+
+fn default_base_size() -> String {
+    "M".into()
+}
+
+/// One size: a name and the shape of its reference body.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SizeDef {
+    /// Size name (letters, digits, `-`).
+    pub name: String,
+    /// Shape parameters of the reference body (unset ones are the average person's).
+    pub shape: ShapeParams,
+}
+
+/// Measurements a size can be chosen by.
+pub const SIZE_MEASUREMENTS: [&str; 4] = ["chest", "waist", "hips", "height"];
 
 fn default_vertices() -> usize {
     10_000
@@ -133,7 +172,50 @@ impl GarmentDef {
                 return Err(format!("{origin}: ease must be from 0 to 0.2 m"));
             }
         }
+        if let Some(g) = &def.grading {
+            if g.by.is_empty() || g.sizes.is_empty() {
+                return Err(format!(
+                    "{origin}: grading needs at least one measurement (`by`) and one size"
+                ));
+            }
+            if let Some(m) =
+                g.by.iter()
+                    .find(|m| !SIZE_MEASUREMENTS.contains(&m.as_str()))
+            {
+                return Err(format!(
+                    "{origin}: grading by {m:?}: measurements are {}",
+                    SIZE_MEASUREMENTS.join(", ")
+                ));
+            }
+            let mut names = vec![g.base.as_str()];
+            for s in &g.sizes {
+                let ok = !s.name.is_empty()
+                    && s.name
+                        .chars()
+                        .all(|c| c.is_ascii_alphanumeric() || c == '-');
+                if !ok || names.contains(&s.name.as_str()) {
+                    return Err(format!(
+                        "{origin}: size name {:?} is empty, repeated or has characters other than letters, digits and -",
+                        s.name
+                    ));
+                }
+                names.push(&s.name);
+                s.shape
+                    .validate()
+                    .map_err(|e| format!("{origin}: size {}: {e}", s.name))?;
+            }
+        }
         Ok(def)
+    }
+
+    /// The size names, the base size first (just the base when the garment is not graded).
+    pub fn size_names(&self) -> Vec<String> {
+        match &self.grading {
+            None => vec![default_base_size()],
+            Some(g) => std::iter::once(g.base.clone())
+                .chain(g.sizes.iter().map(|s| s.name.clone()))
+                .collect(),
+        }
     }
 }
 

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 use sha2::{Digest, Sha256};
 
-use crate::body::{BodyError, BodyModel, ShapedBody};
+use crate::body::{BodyError, BodyModel, ShapeParams, ShapedBody};
 use crate::cloth::collision::BodyCollider;
 use crate::cloth::{SimConfig, SimError};
 use crate::mesh::{MeshError, TriMesh, remesh};
@@ -179,6 +179,7 @@ pub fn build_template(
             origin: "built-in".into(),
             resolution: vertices,
             key,
+            size: None,
             build: serde_json::json!({
                 "vertices": mesh.vertices.len(),
                 "triangles": mesh.triangles.len(),
@@ -223,6 +224,13 @@ impl Library {
         self.assets
             .join("garments/built")
             .join(format!("{name}-{vertices}.safetensors"))
+    }
+
+    /// Cache file of one of a graded built-in garment's other sizes.
+    pub fn size_path(&self, name: &str, vertices: usize, size: &str) -> PathBuf {
+        self.assets
+            .join("garments/built")
+            .join(format!("{name}-{vertices}-{size}.safetensors"))
     }
 
     /// File of an imported garment.
@@ -325,6 +333,81 @@ impl Library {
         Err(self.unknown(name))
     }
 
+    /// A garment in a size: the base size is [`Self::get`]'s template; another size of a
+    /// graded built-in garment is that template graded to the size's reference body (cached
+    /// like the base, built on first use).
+    pub fn get_size(
+        &self,
+        name: &str,
+        vertices: usize,
+        size: &str,
+        model: &BodyModel,
+        built: &mut dyn FnMut(&str),
+    ) -> Result<Template, GarmentError> {
+        let def = built_in(name);
+        let grading = def.as_ref().and_then(|d| d.grading.as_ref());
+        let base = grading.map_or("M", |g| g.base.as_str());
+        if size == base {
+            return self.get(name, vertices, model, built);
+        }
+        let known = def
+            .as_ref()
+            .map_or_else(|| vec!["M".to_string()], |d| d.size_names());
+        let (Some(def), Some(sdef)) = (
+            def.as_ref(),
+            grading.and_then(|g| g.sizes.iter().find(|s| s.name == size)),
+        ) else {
+            return Err(GarmentError::Definition(format!(
+                "{name} has no size {size:?}; its sizes: {}",
+                known.join(", ")
+            )));
+        };
+        let text = def::BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, t)| *t)
+            .expect("a built-in definition");
+        let key = self.key(text)?;
+        let path = self.size_path(name, vertices, size);
+        if path.exists() {
+            if let Ok(t) = Template::load(&path, model.triangles.len(), model.skeleton.len()) {
+                if t.meta.key == key {
+                    return Ok(t);
+                }
+            }
+        }
+        let base = self.get(name, vertices, model, built)?;
+        built(&format!(
+            "grading {name} at {vertices} vertices to size {size} (cached in {})",
+            path.display()
+        ));
+        let t = grade(&base, def, sdef, model)?;
+        store(&t, &path)?;
+        Ok(t)
+    }
+
+    /// The size chart of a garment: each size's reference measurements (`None` for a garment
+    /// that is not graded: it has one size).
+    pub fn size_chart(
+        &self,
+        name: &str,
+        model: &BodyModel,
+    ) -> Result<Option<SizeChart>, GarmentError> {
+        let Some(g) = built_in(name).and_then(|d| d.grading) else {
+            return Ok(None);
+        };
+        let mut sizes = vec![(g.base.clone(), ShapeParams::default())];
+        sizes.extend(g.sizes.iter().map(|s| (s.name.clone(), s.shape)));
+        let sizes = sizes
+            .into_iter()
+            .map(|(n, shape)| {
+                let body = model.shape(&shape)?;
+                Ok((n, measure(&body, &g.by)?))
+            })
+            .collect::<Result<Vec<_>, GarmentError>>()?;
+        Ok(Some(SizeChart { by: g.by, sizes }))
+    }
+
     /// Imports a user's OBJ as garment `name` (see [`import_mesh`]) and stores it.
     pub fn import(
         &self,
@@ -355,6 +438,99 @@ impl Library {
         store(&t, &path)?;
         Ok((t, path))
     }
+}
+
+/// How much more a size that is too small for a body counts than one too large when a size
+/// is picked: a tight garment strains, a loose one only hangs.
+pub const TIGHT_WEIGHT: f32 = 4.0;
+
+/// A graded garment's size chart: the measurements that choose a size and each size's
+/// reference values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SizeChart {
+    /// Measurement names (`chest`, `waist`, `hips`, `height`).
+    pub by: Vec<String>,
+    /// Size name and its reference body's measurements (m), in the order of `by`.
+    pub sizes: Vec<(String, Vec<f32>)>,
+}
+
+impl SizeChart {
+    /// The size a body wears: the one whose reference measurements are closest in relative
+    /// terms, a size too small counting [`TIGHT_WEIGHT`] times as much as one too large (sum
+    /// of the squared `body / reference - 1`; the first size on ties), with the body's
+    /// measurements.
+    pub fn pick(&self, body: &ShapedBody<'_>) -> Result<(String, Vec<f32>), GarmentError> {
+        let m = measure(body, &self.by)?;
+        let misfit = |r: &[f32]| -> f32 {
+            m.iter()
+                .zip(r)
+                .map(|(b, r)| {
+                    let d = b / r - 1.0;
+                    d * d * if d > 0.0 { TIGHT_WEIGHT } else { 1.0 }
+                })
+                .sum::<f32>()
+        };
+        let best = self
+            .sizes
+            .iter()
+            .min_by(|a, b| misfit(&a.1).total_cmp(&misfit(&b.1)))
+            .expect("a chart has sizes");
+        Ok((best.0.clone(), m))
+    }
+}
+
+/// A body's measurements by name (tape girths and height, m).
+pub fn measure(body: &ShapedBody<'_>, by: &[String]) -> Result<Vec<f32>, GarmentError> {
+    let girths = body.girths()?;
+    Ok(by
+        .iter()
+        .map(|m| girths.get(m).unwrap_or_else(|| body.height()))
+        .collect())
+}
+
+/// One size of a graded garment: the base template carried to the size's reference body
+/// (the warp's shape transfer, so the ease follows the body), cleared from that body and
+/// relaxed on it under gravity like a built template. Topology, skinning and bindings are
+/// the base's, so every size has the same vertices and faces.
+pub fn grade(
+    base: &Template,
+    def: &GarmentDef,
+    size: &def::SizeDef,
+    model: &BodyModel,
+) -> Result<Template, GarmentError> {
+    let t0 = std::time::Instant::now();
+    let canonical = model.shape(&ShapeParams::default())?;
+    let reference = model.shape(&size.shape)?;
+    let mut mesh = base.mesh.clone();
+    mesh.vertices = base.reshape(&canonical, &reference);
+    let relaxed = build::settle(
+        &mut mesh,
+        &reference,
+        def.clearance,
+        &SimConfig::default(),
+        true,
+        &def.name,
+    )?;
+    let mut meta = base.meta.clone();
+    meta.size = Some(template::SizeMeta {
+        name: size.name.clone(),
+        reference: size.shape,
+    });
+    meta.build = serde_json::json!({
+        "graded_from": def.grading.as_ref().map(|g| g.base.clone()),
+        "vertices": mesh.vertices.len(),
+        "triangles": mesh.triangles.len(),
+        "relax_frames": relaxed.frames,
+        "relaxed": relaxed.converged,
+        "relax_strain_p95": relaxed.strain_p95,
+        "seconds": t0.elapsed().as_secs_f64(),
+    });
+    Ok(Template {
+        meta,
+        mesh,
+        skin: base.skin.clone(),
+        bindings: base.bindings.clone(),
+    })
 }
 
 /// Writes a template file, creating its folder.
@@ -415,6 +591,7 @@ pub fn import_mesh(
             origin: "imported".into(),
             resolution: 0,
             key: String::new(),
+            size: None,
             build: serde_json::json!({
                 "source": path.display().to_string(),
                 "vertices": mesh.vertices.len(),

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::GarmentError;
 use super::skin::Binding;
 use crate::body::skinning::{self, SkinWeights};
-use crate::body::{PosedBody, ShapedBody};
+use crate::body::{PosedBody, ShapeParams, ShapedBody};
 use crate::mesh::TriMesh;
 
 /// Reach of the smoothing of the shape moves in [`Template::reshape`] (m): neighbour
@@ -41,6 +41,19 @@ pub struct TemplateMeta {
     pub key: String,
     /// Free-form build figures (edge length, angles, relaxation, seconds).
     pub build: serde_json::Value,
+    /// The size this template is, for a graded garment's other sizes: its name and the
+    /// reference body it is made for (`None`: made for the canonical body).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<SizeMeta>,
+}
+
+/// A graded template's size.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SizeMeta {
+    /// Size name.
+    pub name: String,
+    /// Shape of the reference body the template is made for.
+    pub reference: ShapeParams,
 }
 
 /// A garment template.
@@ -65,6 +78,15 @@ fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
 }
 
 impl Template {
+    /// Shape of the body the template is made for, in its rest pose: the canonical body
+    /// unless it is a graded size. Drapes start there and warps reshape from there.
+    pub fn reference(&self) -> ShapeParams {
+        self.meta
+            .size
+            .as_ref()
+            .map_or_else(ShapeParams::default, |s| s.reference)
+    }
+
     /// Number of vertices.
     pub fn len(&self) -> usize {
         self.mesh.vertices.len()
@@ -222,7 +244,8 @@ impl Template {
     }
 
     /// The template carried to a new body shape: each vertex moves as its bound point of the
-    /// body does between the canonical and the `shaped` body (rest pose), the moves smoothed
+    /// body does between the `canonical` (the template's [`Self::reference`] body) and the
+    /// `shaped` body (rest pose), the moves smoothed
     /// over the garment (neighbour averaging reaching about [`RESHAPE_SMOOTHING_REACH`]), so that
     /// neighbours bound to different limbs (a skirt's front between the legs) move together.
     pub fn reshape(&self, canonical: &ShapedBody<'_>, shaped: &ShapedBody<'_>) -> Vec<Vec3> {
