@@ -509,6 +509,7 @@ pub fn grade(
         def.clearance,
         &SimConfig::default(),
         true,
+        true,
         &def.name,
     )?;
     let mut meta = base.meta.clone();
