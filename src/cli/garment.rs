@@ -118,9 +118,13 @@ pub fn template(
     model: &BodyModel,
 ) -> anyhow::Result<Template> {
     let lib = Library::new(&ctx.assets);
-    let vertices =
-        resolution.unwrap_or_else(|| sim::garment::built_in(name).map_or(10_000, |d| d.vertices));
+    let vertices = default_resolution(name, resolution);
     Ok(lib.get(name, vertices, model, &mut |msg| eprintln!("{msg}"))?)
+}
+
+/// The resolution asked for, or the built-in definition's (10k for others).
+fn default_resolution(name: &str, resolution: Option<usize>) -> usize {
+    resolution.unwrap_or_else(|| sim::garment::built_in(name).map_or(10_000, |d| d.vertices))
 }
 
 /// The sizes of a garment as a command uses them: a graded built-in garment's size chart,
@@ -132,6 +136,7 @@ pub struct Wardrobe<'m> {
     vertices: usize,
     model: &'m BodyModel,
     chart: Option<sim::garment::SizeChart>,
+    base: String,
     templates: std::collections::BTreeMap<String, Template>,
 }
 
@@ -145,8 +150,11 @@ impl<'m> Wardrobe<'m> {
         one_size: bool,
     ) -> anyhow::Result<Self> {
         let library = Library::new(&ctx.assets);
-        let vertices = resolution
-            .unwrap_or_else(|| sim::garment::built_in(name).map_or(10_000, |d| d.vertices));
+        let vertices = default_resolution(name, resolution);
+        let base = sim::garment::built_in(name).map_or_else(
+            || sim::garment::def::DEFAULT_BASE_SIZE.to_string(),
+            |d| d.base_size().to_string(),
+        );
         let chart = if one_size {
             None
         } else {
@@ -158,6 +166,7 @@ impl<'m> Wardrobe<'m> {
             vertices,
             model,
             chart,
+            base,
             templates: Default::default(),
         })
     }
@@ -167,10 +176,15 @@ impl<'m> Wardrobe<'m> {
         self.chart.is_some()
     }
 
-    /// The size a body of `shape` wears (`M`, the base, for a one-size garment).
+    /// The base size (the garment on the canonical body).
+    pub fn base(&self) -> &str {
+        &self.base
+    }
+
+    /// The size a body of `shape` wears (the base for a one-size garment).
     pub fn size_for(&self, shape: &ShapeParams) -> anyhow::Result<String> {
         Ok(match &self.chart {
-            None => "M".to_string(),
+            None => self.base.clone(),
             Some(c) => c.pick(&self.model.shape(shape)?)?.0,
         })
     }
@@ -192,6 +206,11 @@ impl<'m> Wardrobe<'m> {
             self.templates.insert(size.to_string(), t);
         }
         Ok(&self.templates[size])
+    }
+
+    /// The template of a size already loaded by [`Self::get`].
+    pub fn loaded(&self, size: &str) -> &Template {
+        &self.templates[size]
     }
 }
 
@@ -462,20 +481,10 @@ fn check(
     };
     let (model, library) = load(ctx)?;
     let mut wardrobe = Wardrobe::new(ctx, name, resolution, &model, one_size)?;
-    let t = wardrobe.get("M")?.clone();
     let canonical = model.shape(&ShapeParams::default())?;
     let prior = PosePrior::new(library);
     let ranges = ShapeRanges::default();
     let rest = sim::body::Pose::rest(model.skeleton.len());
-    // The second part of a two-part garment (the dress's skirt), measured on its own too.
-    let second = match sim::garment::built_in(name) {
-        Some(def) if def.join.is_some() => Some(sim::garment::build::part_of(
-            &def,
-            &canonical,
-            &t.mesh.vertices,
-        )?),
-        _ => None,
-    };
     // (label, shape, pose)
     let cases: Vec<(String, ShapeParams, sim::body::Pose)> = if corners {
         ranges
@@ -493,18 +502,35 @@ fn check(
             })
             .collect()
     };
-    // Each case's size, and each size's template with its cloth model (rest shapes differ).
-    let mut fitted: std::collections::BTreeMap<String, (Template, ClothModel)> = Default::default();
-    let mut sizes = Vec::with_capacity(cases.len());
-    for (_, shape, _) in &cases {
-        let size = wardrobe.size_for(shape)?;
-        if !fitted.contains_key(&size) {
-            let t = wardrobe.get(&size)?.clone();
-            let cloth = ClothModel::new(&t.mesh, &config, &[])?;
-            fitted.insert(size.clone(), (t, cloth));
-        }
-        sizes.push(size);
+    // Each case's size; each size's template, cloth model (rest shapes differ) and
+    // reference body.
+    let sizes: Vec<String> = cases
+        .iter()
+        .map(|(_, shape, _)| wardrobe.size_for(shape))
+        .collect::<anyhow::Result<_>>()?;
+    let base = wardrobe.base().to_string();
+    for size in sizes.iter().chain([&base]) {
+        wardrobe.get(size)?;
     }
+    let mut fitted = std::collections::BTreeMap::new();
+    for size in &sizes {
+        if !fitted.contains_key(size.as_str()) {
+            let t = wardrobe.loaded(size);
+            let cloth = ClothModel::new(&t.mesh, &config, &[])?;
+            fitted.insert(size.as_str(), (t, cloth, model.shape(&t.reference())?));
+        }
+    }
+    let t = wardrobe.loaded(&base);
+    // The second part of a two-part garment (the dress's skirt), measured on its own too
+    // (sizes share the base's vertices).
+    let second = match sim::garment::built_in(name) {
+        Some(def) if def.join.is_some() => Some(sim::garment::build::part_of(
+            &def,
+            &canonical,
+            &t.mesh.vertices,
+        )?),
+        _ => None,
+    };
     println!(
         "{name}: {} vertices, {} drapes ({}), {}, {}, both cores across drapes",
         t.len(),
@@ -517,7 +543,7 @@ fn check(
         if wardrobe.graded() {
             format!(
                 "sizes {} (by measurements)",
-                fitted.keys().cloned().collect::<Vec<_>>().join(", ")
+                fitted.keys().copied().collect::<Vec<_>>().join(", ")
             )
         } else {
             "one size".to_string()
@@ -536,12 +562,11 @@ fn check(
         .par_iter()
         .zip(&sizes)
         .map(|((label, shape, pose), size)| {
-            let (t, cloth) = &fitted[size];
-            let reference = model.shape(&t.reference())?;
+            let (t, cloth, reference) = &fitted[size.as_str()];
             let target = model.shape(shape)?;
             let posed = target.pose(pose);
-            let warp = t.warp(&reference, &target, &posed);
-            let warp_over = overstretched(&t, &warp, 0.3, &|_| true);
+            let warp = t.warp(reference, &target, &posed);
+            let warp_over = overstretched(t, &warp, 0.3, &|_| true);
             if warp_only {
                 bar.inc(1);
                 return Ok(serde_json::json!({
@@ -550,7 +575,7 @@ fn check(
                     "height_m": target.height(),
                     "warp_edges_over_30pct": warp_over,
                     "second_part_warp_edges_over_30pct": second.as_ref().map(|p| {
-                        overstretched(&t, &warp, 0.3, &|v| p[v as usize] == 1)
+                        overstretched(t, &warp, 0.3, &|v| p[v as usize] == 1)
                     }),
                 }));
             }
@@ -713,7 +738,8 @@ fn gallery(
 
     let (model, library) = load(ctx)?;
     let mut wardrobe = Wardrobe::new(ctx, name, resolution, &model, false)?;
-    let t = wardrobe.get("M")?.clone();
+    let base = wardrobe.base().to_string();
+    let t = wardrobe.get(&base)?.clone();
     let config = SimConfig::default();
     let canonical = model.shape(&ShapeParams::default())?;
     let prior = dataset::sampling::PosePrior::new(library);

@@ -54,9 +54,6 @@ impl Girths {
             _ => None,
         }
     }
-
-    /// Names accepted by [`Self::get`].
-    pub const NAMES: [&'static str; 3] = ["chest", "waist", "hips"];
 }
 
 /// Closed loops where the plane `y = level` cuts a triangle mesh, as polylines in (x, z).
@@ -192,15 +189,6 @@ pub struct ProfilePoint {
 }
 
 impl ShapedBody<'_> {
-    fn joint_of(&self, bone: &str, tail: bool) -> Result<Vec3, BodyError> {
-        let skeleton = &self.model.skeleton;
-        let i = skeleton
-            .index(bone)
-            .ok_or_else(|| BodyError::UnknownBone(bone.to_string()))?;
-        let b = &skeleton.bones[i];
-        Ok(self.joints[if tail { b.tail } else { b.head }])
-    }
-
     /// The spine's (x, z) at height `y`: interpolated along the chain of spine joints.
     fn spine_at(&self, chain: &[Vec3], y: f32) -> Vec2 {
         let flat = |p: Vec3| Vec2::new(p.x, p.z);
@@ -219,20 +207,19 @@ impl ShapedBody<'_> {
     }
 
     /// The torso's girth profile from below the hip joints ([`HIPS_BELOW`]) to the armpits,
-    /// every [`STEP`] m
-    /// (levels where the plane passes between the legs are left out).
+    /// every [`STEP`] m (levels where the plane passes between the legs are left out).
     pub fn torso_profile(&self) -> Result<Vec<ProfilePoint>, BodyError> {
         let chain = [
-            self.joint_of("Hips", false)?,
-            self.joint_of("LowerBack", false)?,
-            self.joint_of("Spine", false)?,
-            self.joint_of("Spine1", false)?,
-            self.joint_of("Neck", false)?,
+            self.rest_bone_ends("Hips")?.0,
+            self.rest_bone_ends("LowerBack")?.0,
+            self.rest_bone_ends("Spine")?.0,
+            self.rest_bone_ends("Spine1")?.0,
+            self.rest_bone_ends("Neck")?.0,
         ];
         // The spine joints lie near the back; the section centre is moved forward to the
         // middle of the torso by the hips' depth (the hip joints sit mid-depth).
-        let hip = self.joint_of("LeftUpLeg", false)?;
-        let shoulder = self.joint_of("LeftArm", false)?;
+        let hip = self.rest_bone_ends("LeftUpLeg")?.0;
+        let shoulder = self.rest_bone_ends("LeftArm")?.0;
         let forward = Vec2::new(0.0, (hip.z - chain[0].z).max(0.0));
         let bottom = hip.y - HIPS_BELOW * self.height();
         let top = shoulder.y - ARMPIT_DROP * self.height();
@@ -250,8 +237,8 @@ impl ShapedBody<'_> {
     /// Chest, waist and hip girths (see the module documentation).
     pub fn girths(&self) -> Result<Girths, BodyError> {
         let profile = self.torso_profile()?;
-        let lower_back_top = self.joint_of("LowerBack", true)?.y;
-        let spine1 = self.joint_of("Spine1", false)?.y;
+        let lower_back_top = self.rest_bone_ends("LowerBack")?.1.y;
+        let spine1 = self.rest_bone_ends("Spine1")?.0.y;
         let bad = |what: &str| {
             BodyError::Measure(format!(
                 "the torso profile has no {what} level (shape {:?})",

@@ -171,6 +171,16 @@ impl ShapedBody<'_> {
         hi.y - lo.y
     }
 
+    /// Rest-pose head and tail of the bone named `name` (m).
+    pub fn rest_bone_ends(&self, name: &str) -> Result<(Vec3, Vec3), BodyError> {
+        let skeleton = &self.model.skeleton;
+        let b = skeleton
+            .index(name)
+            .ok_or_else(|| BodyError::UnknownBone(name.to_string()))?;
+        let bone = &skeleton.bones[b];
+        Ok((self.joints[bone.head], self.joints[bone.tail]))
+    }
+
     /// Posed head and tail of a bone (m).
     pub fn bone_ends(&self, posed: &PosedBody, bone: usize) -> (Vec3, Vec3) {
         let b = &self.model.skeleton.bones[bone];

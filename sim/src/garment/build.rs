@@ -127,12 +127,8 @@ pub fn place(def: &PlaneDef, body: &ShapedBody<'_>) -> Result<Plane, GarmentErro
 }
 
 fn bone_ends(name: &str, body: &ShapedBody<'_>) -> Result<(Vec3, Vec3), GarmentError> {
-    let skeleton = &body.model.skeleton;
-    let b = skeleton
-        .index(name)
-        .ok_or_else(|| GarmentError::Definition(format!("no bone named {name}")))?;
-    let bone = &skeleton.bones[b];
-    Ok((body.joints[bone.head], body.joints[bone.tail]))
+    body.rest_bone_ends(name)
+        .map_err(|_| GarmentError::Definition(format!("no bone named {name}")))
 }
 
 /// Moves every vertex out along its area-weighted normal by `ease`.

@@ -50,8 +50,12 @@ pub struct GradingDef {
     pub base: String,
 }
 
+/// Name of the base size unless a grading names it otherwise, and the one size of a garment
+/// that is not graded.
+pub const DEFAULT_BASE_SIZE: &str = "M";
+
 fn default_base_size() -> String {
-    "M".into()
+    DEFAULT_BASE_SIZE.into()
 }
 
 /// One size: a name and the shape of its reference body.
@@ -206,6 +210,13 @@ impl GarmentDef {
             }
         }
         Ok(def)
+    }
+
+    /// Name of the base size (the garment on the canonical body).
+    pub fn base_size(&self) -> &str {
+        self.grading
+            .as_ref()
+            .map_or(DEFAULT_BASE_SIZE, |g| g.base.as_str())
     }
 
     /// The size names, the base size first (just the base when the garment is not graded).

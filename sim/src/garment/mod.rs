@@ -346,13 +346,16 @@ impl Library {
     ) -> Result<Template, GarmentError> {
         let def = built_in(name);
         let grading = def.as_ref().and_then(|d| d.grading.as_ref());
-        let base = grading.map_or("M", |g| g.base.as_str());
+        let base = def
+            .as_ref()
+            .map_or(def::DEFAULT_BASE_SIZE, |d| d.base_size());
         if size == base {
             return self.get(name, vertices, model, built);
         }
-        let known = def
-            .as_ref()
-            .map_or_else(|| vec!["M".to_string()], |d| d.size_names());
+        let known = def.as_ref().map_or_else(
+            || vec![def::DEFAULT_BASE_SIZE.to_string()],
+            |d| d.size_names(),
+        );
         let (Some(def), Some(sdef)) = (
             def.as_ref(),
             grading.and_then(|g| g.sizes.iter().find(|s| s.name == size)),
@@ -482,10 +485,17 @@ impl SizeChart {
 /// A body's measurements by name (tape girths and height, m).
 pub fn measure(body: &ShapedBody<'_>, by: &[String]) -> Result<Vec<f32>, GarmentError> {
     let girths = body.girths()?;
-    Ok(by
-        .iter()
-        .map(|m| girths.get(m).unwrap_or_else(|| body.height()))
-        .collect())
+    by.iter()
+        .map(|m| match m.as_str() {
+            "height" => Ok(body.height()),
+            girth => girths.get(girth).ok_or_else(|| {
+                GarmentError::Definition(format!(
+                    "unknown measurement {girth:?}; measurements are {}",
+                    def::SIZE_MEASUREMENTS.join(", ")
+                ))
+            }),
+        })
+        .collect()
 }
 
 /// One size of a graded garment: the base template carried to the size's reference body
