@@ -11,9 +11,9 @@ use common::{drape, run};
 fn reproduce_runs_a_tiny_plan_resumes_and_keeps_to_its_budget() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let tiny = std::fs::read_to_string("configs/train/tiny.toml")
-        .unwrap()
-        .replace("epochs = 150", "epochs = 3");
+    // The configs keep tiny's 150 epochs: the plan shortens each run to 3 (`epochs`).
+    let tiny = std::fs::read_to_string("configs/train/tiny.toml").unwrap();
+    assert!(tiny.contains("epochs = 150"));
     std::fs::write(dir.join("local.toml"), &tiny).unwrap();
     std::fs::write(
         dir.join("naive.toml"),
@@ -42,12 +42,14 @@ key = "tshirt-local"
 config = "{0}/local.toml"
 data = "tshirt"
 planned_hours = 0.01
+epochs = 3
 
 [[runs]]
 key = "tshirt-naive"
 config = "{0}/naive.toml"
 data = "tshirt"
 planned_hours = 0.01
+epochs = 3
 
 [[runs]]
 key = "tshirt-local-rq"
@@ -104,7 +106,11 @@ samples = 1
     ] {
         assert!(out.join(f).exists(), "{f} missing: {text}");
     }
+    // The plan's epochs reached the run's resolved config, and the report says so.
+    let resolved = std::fs::read_to_string(out.join("runs/tshirt-local/config.toml")).unwrap();
+    assert!(resolved.contains("epochs = 3"), "{resolved}");
     let md = std::fs::read_to_string(docs.join("reproduction.md")).unwrap();
+    assert!(md.contains("`tshirt-local` (3 epochs)"), "{md}");
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(docs.join("reproduction.json")).unwrap()).unwrap();
     // Table 1's T-shirt GarNet-Local cell carries our Edist and the paper's 0.56; the
@@ -208,4 +214,12 @@ samples = 1
     .unwrap();
     let (ok, text) = reproduce("gate.toml");
     assert!(!ok && text.contains("max_failure_rate"), "{text}");
+    // So is a run of no epochs.
+    std::fs::write(
+        dir.join("zero.toml"),
+        plan(1.0).replacen("epochs = 3", "epochs = 0", 1),
+    )
+    .unwrap();
+    let (ok, text) = reproduce("zero.toml");
+    assert!(!ok && text.contains("epochs must be at least 1"), "{text}");
 }

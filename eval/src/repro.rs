@@ -41,6 +41,13 @@ pub struct PlanRun {
     pub init: Option<String>,
     /// Planned machine hours of its training.
     pub planned_hours: f64,
+    /// Epochs instead of the config's (`drape train --epochs`), for a shorter plan that
+    /// reuses the same training configs.
+    #[serde(default)]
+    pub epochs: Option<usize>,
+    /// Wall-clock cap instead of the config's (`drape train --wall-clock-minutes`).
+    #[serde(default)]
+    pub wall_clock_minutes: Option<f64>,
 }
 
 /// The speed-up measurement of the plan.
@@ -139,6 +146,17 @@ impl Plan {
             }
             if !(r.planned_hours >= 0.0) {
                 return Err(format!("run {}: planned_hours must be >= 0", r.key));
+            }
+            if r.epochs == Some(0) {
+                return Err(format!("run {}: epochs must be at least 1", r.key));
+            }
+            if r.wall_clock_minutes
+                .is_some_and(|m| !(m > 0.0) || !m.is_finite())
+            {
+                return Err(format!(
+                    "run {}: wall_clock_minutes must be positive",
+                    r.key
+                ));
             }
         }
         for k in &self.speedup.runs {
@@ -683,13 +701,21 @@ pub fn write_report(
     writeln!(w, "# Reproduction of GarNet++ on drape's data\n").unwrap();
     writeln!(
         w,
-        "Made by `drape reproduce {}` (plan `{}`, working folder `{}`), program {} at git `{}`, on {}. Every number below is also in `reproduction.json` with the sha256 of its run config, of its dataset's manifest and the git revision that evaluated it. A dash marks a stage that has not run yet: running the same command again resumes.\n",
+        "Made by `drape reproduce {}` (plan `{}`, working folder `{}`), program {} at git `{}`, on {}. Every number below is also in `reproduction.json` with the sha256 of its run config, of its dataset's manifest and the git revision that evaluated it. This plan trains {}. A dash marks a run outside the plan, or a stage that has not run yet: running the same command again resumes.\n",
         plan_path.display(),
         plan.name,
         out.display(),
         env!("CARGO_PKG_VERSION"),
         dataset::manifest::GIT_REVISION,
-        machine()
+        machine(),
+        plan.runs
+            .iter()
+            .map(|r| match r.epochs {
+                Some(e) => format!("`{}` ({e} epochs)", r.key),
+                None => format!("`{}`", r.key),
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
     )
     .unwrap();
 

@@ -29,11 +29,25 @@ pub struct TrainArgs {
     /// Start from this run's best weights (fine-tuning, e.g. -RQ from a GarNet-Local run).
     #[arg(long, value_name = "RUN_DIR")]
     init: Option<PathBuf>,
+    /// Train this many epochs instead of the config's `epochs` (the learning-rate schedule
+    /// follows; the run's config.toml records the value used).
+    #[arg(long, value_name = "N")]
+    epochs: Option<usize>,
+    /// Wall-clock cap of this invocation instead of the config's `wall_clock_minutes`.
+    #[arg(long, value_name = "MINUTES")]
+    wall_clock_minutes: Option<f64>,
 }
 
 /// Runs `drape train`.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
-    let config = TrainConfig::load(&args.config)?;
+    let mut config = TrainConfig::load(&args.config)?;
+    if let Some(e) = args.epochs {
+        config.epochs = e;
+    }
+    if let Some(m) = args.wall_clock_minutes {
+        config.wall_clock_minutes = m;
+    }
+    config.validate()?;
     let data = args.data.unwrap_or_else(|| config.data.clone());
     let run = args
         .output

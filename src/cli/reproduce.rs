@@ -382,6 +382,16 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
                 a.push("--init".as_ref());
                 a.push(i.as_os_str());
             }
+            let epochs = r.epochs.map(|e| e.to_string());
+            if let Some(e) = &epochs {
+                a.push("--epochs".as_ref());
+                a.push(e.as_ref());
+            }
+            let minutes = r.wall_clock_minutes.map(|m| m.to_string());
+            if let Some(m) = &minutes {
+                a.push("--wall-clock-minutes".as_ref());
+                a.push(m.as_ref());
+            }
             let spent = lock(clock).hours();
             let log = log_of(&r.key);
             match threads {
