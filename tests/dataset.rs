@@ -429,3 +429,87 @@ fn a_micrometre_disturbance_barely_moves_a_drape() {
         assert!(!out.exists(), "{args:?} wrote {}", out.display());
     }
 }
+
+/// `sizes = true`: each body wears the size its measurements pick from the garment's chart,
+/// the record names it, the drape starts from that size, and `drape data info` counts the
+/// sizes; a config without sizes keeps its hash; an ungraded garment is refused.
+#[test]
+fn bodies_wear_the_size_their_measurements_pick() {
+    use sim::body::{BodyModel, ShapeParams};
+    let t = tempfile::tempdir().unwrap();
+    let tiny = std::fs::read_to_string("configs/datasets/tiny.toml").unwrap();
+    // Without sizes the resolved config has no `sizes` field: older datasets keep their hash.
+    let plain = dataset::config::DatasetConfig::load("tiny").unwrap();
+    assert!(plain.resolved_json().get("sizes").is_none());
+    let sized_text = tiny.replacen("seed = 1\n", "seed = 1\nsizes = true\n", 1);
+    let cfg = t.path().join("sized.toml");
+    std::fs::write(&cfg, &sized_text).unwrap();
+    let out = t.path().join("data");
+    let (ok, text) = run(drape().arg("gen").arg(&cfg).arg("-o").arg(&out));
+    assert!(ok, "{text}");
+    let ds = Dataset::open(&out).unwrap();
+    let c = ds.manifest.dataset_config().unwrap();
+    assert!(c.sizes && c.hash() != plain.hash());
+    // The size in each record is the chart's pick for the sample's body.
+    let model = BodyModel::load_default().unwrap();
+    let lib = sim::garment::Library::new(Path::new("assets"));
+    let chart = lib.size_chart("tshirt", &model).unwrap().expect("graded");
+    let mut seen = std::collections::BTreeSet::new();
+    for r in ds.manifest.samples() {
+        let body = model.shape(&ShapeParams::from_named(r.shape)).unwrap();
+        let (want, _) = chart.pick(&body).unwrap();
+        assert_eq!(
+            r.size.as_deref(),
+            Some(want.as_str()),
+            "sample {}",
+            r.plan.id
+        );
+        seen.insert(want);
+    }
+    // Bodies drawn from the whole adult range do not all wear the base size.
+    assert!(seen.len() >= 2, "sizes worn: {seen:?}");
+    // A drape that starts from a larger size on its reference body still lands on the body:
+    // the stored drapes are not the base size's drapes of the same samples.
+    let plain_ds = Dataset::open(&reference().1).unwrap();
+    let differs = ds
+        .manifest
+        .samples()
+        .filter(|r| r.ok && r.size.as_deref() != Some("M"))
+        .any(|r| {
+            let a = ds
+                .samples(r.plan.split)
+                .map(Result::unwrap)
+                .find(|s| s.row.id == r.plan.id);
+            let b = plain_ds
+                .samples(r.plan.split)
+                .map(Result::unwrap)
+                .find(|s| s.row.id == r.plan.id);
+            match (a, b) {
+                (Some(a), Some(b)) => {
+                    // The shard's metadata names the size too. Same body and warp (the
+                    // base template's), another drape.
+                    assert_eq!(a.record.size, r.size);
+                    assert_eq!(a.row.warped, b.row.warped);
+                    a.row.draped != b.row.draped
+                }
+                _ => false,
+            }
+        });
+    assert!(
+        differs,
+        "no sample draped in another size differs from its base-size drape"
+    );
+    let (ok, text) = run(drape().args(["data", "info"]).arg(&out));
+    assert!(ok && text.contains("size "), "{text}");
+    // Jeans are not graded: refused before any work.
+    let jeans = t.path().join("jeans.toml");
+    std::fs::write(
+        &jeans,
+        sized_text.replace("garment = \"tshirt\"", "garment = \"jeans\""),
+    )
+    .unwrap();
+    let none = t.path().join("none");
+    let (ok, text) = run(drape().arg("gen").arg(&jeans).arg("-o").arg(&none));
+    assert!(!ok && text.contains("not graded"), "{text}");
+    assert!(!none.exists());
+}

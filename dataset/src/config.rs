@@ -102,6 +102,16 @@ pub struct DatasetConfig {
     /// Simulator parameters (fields left out keep the defaults of `configs/sim/default.toml`).
     #[serde(default)]
     pub sim: SimConfig,
+    /// Drape each body in the size its measurements pick from the garment's size chart
+    /// (a graded garment only; default false: every body wears the base template). The
+    /// size is recorded per sample; the network's input stays the base template's warp.
+    /// Left out of the resolved config when false, so older configs keep their hash.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub sizes: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 fn default_shard_samples() -> u32 {
@@ -195,6 +205,18 @@ impl DatasetConfig {
         }
         if self.bodies.train + self.bodies.val + self.bodies.test == 0 {
             return Err("no bodies in any split".into());
+        }
+        if self.sizes && sim::garment::built_in(&self.garment).is_none_or(|d| d.grading.is_none()) {
+            let graded: Vec<&str> = sim::garment::def::BUILT_IN
+                .iter()
+                .map(|(n, _)| *n)
+                .filter(|n| sim::garment::built_in(n).is_some_and(|d| d.grading.is_some()))
+                .collect();
+            return Err(format!(
+                "sizes = true, but garment {} is not graded (graded: {})",
+                self.garment,
+                graded.join(", ")
+            ));
         }
         if self.poses_per_body == 0 {
             return Err("poses_per_body must be at least 1".into());

@@ -26,9 +26,10 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use sim::body::{BodyModel, PoseLibrary, ShapeParams};
-use sim::cloth::ClothModel;
 use sim::cloth::drape::{self, BodyMorph};
 use sim::garment::template::Template;
+
+use crate::wardrobe::Wardrobe;
 
 use crate::DatasetError;
 use crate::config::{DatasetConfig, hex};
@@ -115,25 +116,23 @@ struct PartialMeta {
 struct Job<'a> {
     config: &'a DatasetConfig,
     model: &'a BodyModel,
-    template: &'a Template,
-    cloth: ClothModel,
+    wardrobe: &'a Wardrobe,
     poser: Poser,
     canonical: sim::body::ShapedBody<'a>,
 }
 
 impl<'a> Job<'a> {
-    /// The garment cooked for the config's simulator, the poser and the canonical body.
+    /// The poser and the canonical body for the garment in `wardrobe`.
     fn new(
         config: &'a DatasetConfig,
         model: &'a BodyModel,
-        template: &'a Template,
+        wardrobe: &'a Wardrobe,
         library: PoseLibrary,
     ) -> Result<Self, DatasetError> {
         Ok(Self {
             config,
             model,
-            template,
-            cloth: ClothModel::new(&template.mesh, &config.sim, &[])?,
+            wardrobe,
             poser: Poser::new(config, model, library)?,
             canonical: model.shape(&ShapeParams::default())?,
         })
@@ -147,19 +146,21 @@ impl<'a> Job<'a> {
         let drawn = self.poser.draw(c, self.model, &plan)?;
         let shaped = self.model.shape(&drawn.shape)?;
         let posed = shaped.pose(&drawn.pose);
-        let warped = self.template.warp(&self.canonical, &shaped, &posed);
+        let warped = self.wardrobe.base.warp(&self.canonical, &shaped, &posed);
         let warp_seconds = t0.elapsed().as_secs_f64();
+        // The drape starts from the body's size on that size's reference body.
+        let start = self.wardrobe.start(&shaped)?;
         let motion = BodyMorph::new(
             self.model,
-            ShapeParams::default(),
+            start.reference,
             drawn.shape,
             drawn.pose.clone(),
             c.sim.morph_frames,
         )?;
         // One thread per drape: threads go across drapes, and the bits do not depend on it.
         let d = drape::drape(
-            &self.cloth,
-            &self.template.mesh.vertices,
+            start.cloth,
+            &start.template.mesh.vertices,
             &motion,
             &c.sim,
             false,
@@ -171,6 +172,7 @@ impl<'a> Job<'a> {
             family: drawn.family.clone(),
             pose_source: drawn.pose_source.clone(),
             shape: drawn.shape.values(),
+            size: start.size.map(String::from),
             ok,
             failure: d.report.failure.map(|f| f.to_string()),
             report: serde_json::to_value(&d.report).expect("reports serialise"),
@@ -264,7 +266,8 @@ pub fn redrape(
         )));
     }
     let (model, library, template) = load_inputs(config, assets, &mut |_| {})?;
-    let job = Job::new(config, &model, &template, library)?;
+    let wardrobe = Wardrobe::new(template, config, &model, assets, &mut |_| {})?;
+    let job = Job::new(config, &model, &wardrobe, library)?;
     ids.par_iter().map(|&id| job.run(id)).collect()
 }
 
@@ -347,7 +350,9 @@ pub fn generate(
     }
 
     let (model, library, template) = load_inputs(config, assets, log)?;
-    let job = Job::new(config, &model, &template, library)?;
+    let wardrobe = Wardrobe::new(template, config, &model, assets, log)?;
+    let template = &wardrobe.base;
+    let job = Job::new(config, &model, &wardrobe, library)?;
     let dims: Dims = (
         job.canonical.vertices.len(),
         template.mesh.vertices.len(),

@@ -55,6 +55,8 @@ pub struct Info {
     pub failures_by_split: BTreeMap<Split, Tally>,
     /// Failures per pose family.
     pub failures_by_family: BTreeMap<String, Tally>,
+    /// Samples and failures per garment size (empty without sizes).
+    pub failures_by_size: BTreeMap<String, Tally>,
     /// Failure reasons.
     pub failure_reasons: BTreeMap<String, usize>,
     /// Bytes on disk (shards and static file).
@@ -119,6 +121,7 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
         samples: Split::ALL.iter().map(|&s| (s, ds.count(s))).collect(),
         failures_by_split: m.tally_by_split(),
         failures_by_family: m.tally_by_family(),
+        failures_by_size: m.tally_by_size(),
         failure_reasons: m.failure_reasons(),
         bytes,
         strain_p95: stat(&["strain", "p95"]),

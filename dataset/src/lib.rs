@@ -11,6 +11,8 @@
 //! - [`manifest`]: the JSON manifest: config, versions, per-sample reports, shard checksums.
 //! - [`reader`]: iterate the samples of a split one shard at a time.
 //! - [`inspect`]: `drape data info`, `verify`, `merge`.
+//! - [`wardrobe`]: the garment a dataset drapes: its base template and, with `sizes`, the
+//!   size each body wears.
 #![warn(missing_docs)]
 
 use std::path::PathBuf;
@@ -24,6 +26,7 @@ pub mod prior_check;
 pub mod reader;
 pub mod sampling;
 pub mod shard;
+pub mod wardrobe;
 
 /// Errors of dataset configs, generation and reading.
 #[derive(Debug, thiserror::Error)]

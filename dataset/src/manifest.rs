@@ -27,6 +27,9 @@ pub struct SampleRecord {
     pub pose_source: String,
     /// Shape parameters (`shard::SHAPE_FIELDS` order).
     pub shape: [f32; 9],
+    /// The garment size the body wore (datasets with `sizes = true`; absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<String>,
     /// Whether the drape converged (failed drapes are left out of the shards).
     pub ok: bool,
     /// Why it failed.
@@ -185,6 +188,19 @@ impl Manifest {
             let t = m.entry(s.family.clone()).or_default();
             t.samples += 1;
             t.failed += usize::from(!s.ok);
+        }
+        m
+    }
+
+    /// Samples and failures per garment size (empty for a dataset without sizes).
+    pub fn tally_by_size(&self) -> BTreeMap<String, Tally> {
+        let mut m: BTreeMap<String, Tally> = BTreeMap::new();
+        for s in self.samples() {
+            if let Some(size) = &s.size {
+                let t = m.entry(size.clone()).or_default();
+                t.samples += 1;
+                t.failed += usize::from(!s.ok);
+            }
         }
         m
     }

@@ -19,19 +19,18 @@
 use dataset::config::Split;
 use dataset::reader::Dataset;
 use dataset::shard::Row;
+use dataset::wardrobe::Wardrobe;
 use glam::Vec3;
 use learn::predict::Predictor;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use sim::body::BodyModel;
-use sim::cloth::ClothModel;
 use sim::cloth::drape;
-use sim::garment::Template;
 
 use crate::evaluate::EvalError;
 use crate::metrics::{edist_cm, enorm_deg, mean, mean_std, median, vertex_errors};
-use crate::speed::{dataset_cloth, row_morph};
+use crate::speed::Redraper;
 
 /// Options of the measurement.
 #[derive(Debug, Clone)]
@@ -186,36 +185,43 @@ fn offset_seed(seed: u64, id: u64, k: usize) -> u64 {
 /// `row` draped as the dataset did, from the template moved by the offsets of amplitude
 /// index `k`.
 fn redrape(
-    cloth: &ClothModel,
-    sim: &sim::cloth::SimConfig,
+    redraper: &Redraper<'_>,
     model: &BodyModel,
-    template: &Template,
     row: &Row,
     opts: &SensitivityOptions,
     k: usize,
 ) -> Result<drape::DrapeResult, EvalError> {
-    let motion = row_morph(model, row, sim.morph_frames)?;
-    let start = jitter(
-        &template.mesh.vertices,
+    let start = redraper.start(row)?;
+    let motion = redraper.morph(model, row, &start)?;
+    let x0 = jitter(
+        &start.template.mesh.vertices,
         opts.amplitudes[k],
         offset_seed(opts.seed, row.id, k),
     );
-    Ok(drape::drape(cloth, &start, &motion, sim, true, &mut |_| {}))
+    let sim = &redraper.config.sim;
+    Ok(drape::drape(
+        start.cloth,
+        &x0,
+        &motion,
+        sim,
+        true,
+        &mut |_| {},
+    ))
 }
 
 /// Redrapes the first `opts.samples` samples of `data`'s split once per amplitude.
-/// `template` must be the template the dataset was made with; `run`, if given, is a trained
+/// `wardrobe` must hold the template the dataset was made with; `run`, if given, is a trained
 /// network measured on the same samples. `progress` is called per finished sample.
 pub fn measure(
     data: &Dataset,
     model: &BodyModel,
-    template: &Template,
+    wardrobe: &Wardrobe,
     run: Option<&std::path::Path>,
     opts: &SensitivityOptions,
     progress: &mut dyn FnMut(&SampleSensitivity),
 ) -> Result<SensitivityReport, EvalError> {
     opts.validate()?;
-    let (config, cloth) = dataset_cloth(data, template)?;
+    let redraper = Redraper::new(data, wardrobe)?;
     let net = run.map(|r| Predictor::open(r, &data.statics)).transpose()?;
     let rows = crate::evaluate::first_rows(data, opts.split, opts.samples)?;
     let tris = &data.statics.garment_triangles;
@@ -224,7 +230,7 @@ pub fn measure(
     for row in &rows {
         let mut redrapes = Vec::with_capacity(opts.amplitudes.len());
         for k in 0..opts.amplitudes.len() {
-            let out = redrape(&cloth, &config.sim, model, template, row, opts, k)?;
+            let out = redrape(&redraper, model, row, opts, k)?;
             let d = vertex_errors(&out.positions, &row.draped);
             let r = Redrape {
                 amplitude: opts.amplitudes[k],

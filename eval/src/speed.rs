@@ -17,13 +17,13 @@ use std::time::Instant;
 use dataset::config::Split;
 use dataset::reader::Dataset;
 use dataset::shard::Row;
+use dataset::wardrobe::{Start, Wardrobe};
 use glam::Vec3;
 use learn::config::{ModelConfig, Variant};
 use learn::predict::Predictor;
 use serde::{Deserialize, Serialize};
 use sim::body::pose::Pose;
 use sim::body::{BodyModel, PosedBody, ShapeParams, ShapedBody};
-use sim::cloth::ClothModel;
 use sim::cloth::drape::{self, BodyMorph, StaticBody};
 use sim::garment::Template;
 
@@ -197,44 +197,94 @@ fn row_body(row: &Row) -> (ShapeParams, Pose) {
     )
 }
 
-/// The body motion of the dataset's drape protocol for a stored sample: from the canonical
-/// body in its rest pose to the row's shape and pose over `frames` frames.
-pub(crate) fn row_morph<'m>(
-    model: &'m BodyModel,
-    row: &Row,
-    frames: u32,
-) -> Result<BodyMorph<'m>, EvalError> {
-    let (shape, pose) = row_body(row);
-    BodyMorph::new(model, ShapeParams::default(), shape, pose, frames)
-        .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))
+/// Redraping stored samples as the dataset did: the dataset's config, its garment's
+/// wardrobe (checked against the template the dataset was made with) and the size each
+/// sample wore.
+pub(crate) struct Redraper<'w> {
+    /// The dataset's config.
+    pub config: dataset::config::DatasetConfig,
+    /// The garment: base template and sizes.
+    pub wardrobe: &'w Wardrobe,
+    sizes: std::collections::HashMap<u64, Option<String>>,
 }
 
-/// The dataset's config and its garment cooked for the dataset's simulator config, after
-/// checking that `template` (built here) is the one the dataset was made with.
-pub(crate) fn dataset_cloth(
-    data: &Dataset,
-    template: &Template,
-) -> Result<(dataset::config::DatasetConfig, ClothModel), EvalError> {
-    let config = data.manifest.dataset_config()?;
-    let ours = &template.mesh.vertices;
-    let theirs = &data.statics.garment_vertices;
-    let drift = ours
-        .iter()
-        .zip(theirs)
-        .map(|(a, b)| a.distance(*b))
-        .fold(0.0f32, f32::max);
-    if ours.len() != theirs.len() || drift > 1e-5 {
-        return Err(EvalError::Invalid(format!(
-            "the {} template built here differs from the one {} was made with (vertices {} and {}, largest offset {drift} m): rebuild the dataset or the template",
-            config.garment,
-            data.dir.display(),
-            ours.len(),
-            theirs.len()
-        )));
+impl<'w> Redraper<'w> {
+    /// Fails if `wardrobe`'s base template (built here) is not the one `data` was made
+    /// with, or if it has sizes and the dataset does not (or the other way round).
+    pub fn new(data: &Dataset, wardrobe: &'w Wardrobe) -> Result<Self, EvalError> {
+        let config = data.manifest.dataset_config()?;
+        let ours = &wardrobe.base.mesh.vertices;
+        let theirs = &data.statics.garment_vertices;
+        let drift = ours
+            .iter()
+            .zip(theirs)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max);
+        if ours.len() != theirs.len() || drift > 1e-5 {
+            return Err(EvalError::Invalid(format!(
+                "the {} template built here differs from the one {} was made with (vertices {} and {}, largest offset {drift} m): rebuild the dataset or the template",
+                config.garment,
+                data.dir.display(),
+                ours.len(),
+                theirs.len()
+            )));
+        }
+        if config.sizes != wardrobe.graded() {
+            return Err(EvalError::Invalid(format!(
+                "{} was {} sizes, the garment loaded here {}",
+                data.dir.display(),
+                if config.sizes {
+                    "draped in"
+                } else {
+                    "made without"
+                },
+                if wardrobe.graded() {
+                    "has them"
+                } else {
+                    "has none"
+                }
+            )));
+        }
+        let sizes = data
+            .manifest
+            .samples()
+            .map(|r| (r.plan.id, r.size.clone()))
+            .collect();
+        Ok(Self {
+            config,
+            wardrobe,
+            sizes,
+        })
     }
-    let cloth = ClothModel::new(&template.mesh, &config.sim, &[])
-        .map_err(|e| EvalError::Invalid(format!("cooking the garment: {e}")))?;
-    Ok((config, cloth))
+
+    /// Where the dataset's drape of `row` started: its size's template and reference body.
+    pub fn start(&self, row: &Row) -> Result<Start<'w>, EvalError> {
+        let size = self.sizes.get(&row.id).ok_or_else(|| {
+            EvalError::Invalid(format!("sample {} is not in the manifest", row.id))
+        })?;
+        self.wardrobe
+            .start_of(size.as_deref())
+            .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))
+    }
+
+    /// The body motion of the dataset's drape protocol for `row`: from the start's
+    /// reference body in its rest pose to the row's shape and pose.
+    pub fn morph<'m>(
+        &self,
+        model: &'m BodyModel,
+        row: &Row,
+        start: &Start<'_>,
+    ) -> Result<BodyMorph<'m>, EvalError> {
+        let (shape, pose) = row_body(row);
+        BodyMorph::new(
+            model,
+            start.reference,
+            shape,
+            pose,
+            self.config.sim.morph_frames,
+        )
+        .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))
+    }
 }
 
 /// Measures the speed-up of the network of `run` on the first samples of `data`'s split.
@@ -243,11 +293,13 @@ pub fn measure(
     run: &std::path::Path,
     data: &Dataset,
     model: &BodyModel,
-    template: &Template,
+    wardrobe: &Wardrobe,
     opts: &SpeedOptions,
     progress: &mut dyn FnMut(&SampleSpeed),
 ) -> Result<SpeedReport, EvalError> {
-    let (config, cloth) = dataset_cloth(data, template)?;
+    let redraper = Redraper::new(data, wardrobe)?;
+    let config = &redraper.config;
+    let template = &wardrobe.base;
     let net = Predictor::open(run, &data.statics)?;
     let canonical = model
         .shape(&ShapeParams::default())
@@ -261,10 +313,11 @@ pub fn measure(
             .shape(&shape)
             .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))?;
         let posed = shaped.pose(&pose);
-        let motion = row_morph(model, row, config.sim.morph_frames)?;
+        let start = redraper.start(row)?;
+        let motion = redraper.morph(model, row, &start)?;
         let full = drape::drape(
-            &cloth,
-            &template.mesh.vertices,
+            start.cloth,
+            &start.template.mesh.vertices,
             &motion,
             &config.sim,
             true,
@@ -274,7 +327,16 @@ pub fn measure(
             vertices: posed.vertices.clone(),
             triangles: model.triangles.clone(),
         };
-        let dagger = drape::drape(&cloth, &row.warped, &still, &config.sim, true, &mut |_| {});
+        // PBS-dagger starts from the warp M, the network's input: the base template's.
+        let base_cloth = wardrobe.base_cloth();
+        let dagger = drape::drape(
+            base_cloth,
+            &row.warped,
+            &still,
+            &config.sim,
+            true,
+            &mut |_| {},
+        );
         let t = network_drape(
             &net,
             template,

@@ -232,6 +232,11 @@ fn bench_speedup(
     let dc = data.manifest.dataset_config()?;
     let (model, _, template) =
         dataset::generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
+    let wardrobe =
+        dataset::wardrobe::Wardrobe::new(template, &dc, &model, &ctx.assets, &mut |g| {
+            eprintln!("{g}")
+        })?;
+    let template = &wardrobe.base;
     let threads = rayon::current_num_threads();
     println!(
         "{} ({} vertices) from {}; {} test samples of {}; simulator config of the dataset ({}); {threads} threads",
@@ -258,7 +263,7 @@ fn bench_speedup(
         run,
         &data,
         &model,
-        &template,
+        &wardrobe,
         &eval::speed::SpeedOptions {
             samples,
             batch,

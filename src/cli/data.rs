@@ -271,6 +271,11 @@ fn sensitivity_run(
     let dc = data.manifest.dataset_config()?;
     let (model, _, template) =
         generate::load_inputs(&dc, &ctx.assets, &mut |g| eprintln!("building {g}"))?;
+    let wardrobe =
+        dataset::wardrobe::Wardrobe::new(template, &dc, &model, &ctx.assets, &mut |g| {
+            eprintln!("{g}")
+        })?;
+    let template = &wardrobe.base;
     let n = samples.min(data.count(split));
     println!(
         "{} ({}, {} vertices): {n} {} samples redraped {} time(s) each with the dataset's simulator config ({}), starting offsets up to {} m; seed {seed}",
@@ -294,7 +299,7 @@ fn sensitivity_run(
         print!(" {:>16}", format!("Edist@{a:e} cm"));
     }
     println!();
-    let report = measure(&data, &model, &template, run, &opts, &mut |s| {
+    let report = measure(&data, &model, &wardrobe, run, &opts, &mut |s| {
         print!("{:>8} {:>8.2}", s.id, s.dqs_cm);
         if let Some(n) = s.network_cm {
             print!(" {n:>10.2}");
@@ -413,6 +418,14 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                     "  family {f:<8} {} of {} failed ({:.1}%)",
                     t.failed,
                     t.samples,
+                    100.0 * t.rate()
+                );
+            }
+            for (z, t) in &i.failures_by_size {
+                println!(
+                    "  size {z:<14} {} drapes, {} failed ({:.1}%)",
+                    t.samples,
+                    t.failed,
                     100.0 * t.rate()
                 );
             }

@@ -10,7 +10,6 @@ use dataset::plan::{Poser, SamplePlan};
 use learn::predict::Predictor;
 use serde::{Deserialize, Serialize};
 use sim::body::ShapeParams;
-use sim::cloth::ClothModel;
 use sim::cloth::drape::{self, BodyMorph};
 use sim::mesh::TriMesh;
 
@@ -73,7 +72,11 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
         eprintln!("building the {g} template (once; cached in assets/garments/built)")
     })?;
     let canonical = model.shape(&ShapeParams::default())?;
-    let cloth = ClothModel::new(&template.mesh, &dc.sim, &[])?;
+    let wardrobe =
+        dataset::wardrobe::Wardrobe::new(template, &dc, &model, &ctx.assets, &mut |g| {
+            eprintln!("{g}")
+        })?;
+    let template = &wardrobe.base;
     let statics = dataset::shard::Static::new(&template.mesh, &model, &canonical.vertices);
     let net = Predictor::open(&run_dir, &statics)?;
     let poser = Poser::new(&dc, &model, library)?;
@@ -101,10 +104,15 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
         args.seed, drawn.family, drawn.pose_source
     );
 
-    // The simulator: the dataset's protocol and config, on all threads.
+    // The simulator: the dataset's protocol and config (the body's size, if the dataset
+    // uses sizes), on all threads.
+    let start = wardrobe.start(&shaped)?;
+    if let Some(size) = start.size {
+        println!("size {size} (picked from the body's measurements)");
+    }
     let motion = BodyMorph::new(
         &model,
-        ShapeParams::default(),
+        start.reference,
         drawn.shape,
         drawn.pose.clone(),
         dc.sim.morph_frames,
@@ -112,8 +120,8 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     let bar = learn::run::progress(true, (dc.sim.morph_frames + dc.sim.max_frames) as u64);
     bar.set_message("simulator");
     let sim_result = drape::drape(
-        &cloth,
-        &template.mesh.vertices,
+        start.cloth,
+        &start.template.mesh.vertices,
         &motion,
         &dc.sim,
         true,

@@ -1,0 +1,169 @@
+//! The garment a dataset drapes. Its base template is the network's `M0` (stored in
+//! `static.safetensors`; every sample's warp `M` is the base template's). A config with
+//! `sizes = true` drapes each body in the size its measurements pick from a graded
+//! garment's chart: the drape starts from that size's template on its reference body, and
+//! the size's name goes into the sample's record. The sizes share the base template's
+//! topology, so the shards and the network are the same either way; the size is a function
+//! of the body's shape, which the network sees.
+
+use sim::body::{BodyModel, ShapeParams, ShapedBody};
+use sim::cloth::ClothModel;
+use sim::garment::template::Template;
+use sim::garment::{Library, SizeChart};
+
+use crate::DatasetError;
+use crate::config::DatasetConfig;
+
+/// One size: its template, cooked for the dataset's simulator config.
+#[derive(Debug)]
+pub struct Size {
+    /// Size name (`M`, `men-L`, ...).
+    pub name: String,
+    /// The base template graded to the size's reference body.
+    pub template: Template,
+    /// The template cooked for the simulator.
+    pub cloth: ClothModel,
+}
+
+/// Where a drape starts: the size's template on its reference body.
+#[derive(Debug)]
+pub struct Start<'a> {
+    /// Size name (`None`: the dataset does not use sizes).
+    pub size: Option<&'a str>,
+    /// The template the drape starts from.
+    pub template: &'a Template,
+    /// It, cooked.
+    pub cloth: &'a ClothModel,
+    /// The body shape the template is made for: the drape's body morph starts there.
+    pub reference: ShapeParams,
+}
+
+/// The base template and, with sizes, every size and the chart.
+#[derive(Debug)]
+pub struct Wardrobe {
+    /// The base template (the network's `M0`).
+    pub base: Template,
+    base_cloth: ClothModel,
+    sizes: Option<(SizeChart, Vec<Size>)>,
+}
+
+impl Wardrobe {
+    /// The wardrobe of dataset `config` whose base template is `base`: with `sizes`, also
+    /// every size of the graded garment at the config's resolution (graded and cached in
+    /// `assets` on first use; `built` hears of each build). Every template is cooked for the
+    /// config's simulator.
+    pub fn new(
+        base: Template,
+        config: &DatasetConfig,
+        model: &BodyModel,
+        assets: &std::path::Path,
+        built: &mut dyn FnMut(&str),
+    ) -> Result<Self, DatasetError> {
+        let (garment, sim) = (&config.garment, &config.sim);
+        let base_cloth = ClothModel::new(&base.mesh, sim, &[])?;
+        let sizes = if config.sizes {
+            let lib = Library::new(assets);
+            let Some(chart) = lib.size_chart(garment, model)? else {
+                return Err(DatasetError::Invalid(format!(
+                    "sizes = true, but garment {garment} is not graded (configs/garments/{garment}.toml has no [grading]); remove sizes or pick a graded garment"
+                )));
+            };
+            let mut v = Vec::new();
+            for (name, _) in &chart.sizes {
+                let template = lib.get_size(garment, config.resolution, name, model, built)?;
+                if template.mesh.triangles != base.mesh.triangles {
+                    return Err(DatasetError::Invalid(format!(
+                        "size {name} of {garment} does not share the base template's triangles"
+                    )));
+                }
+                let cloth = ClothModel::new(&template.mesh, sim, &[])?;
+                v.push(Size {
+                    name: name.clone(),
+                    template,
+                    cloth,
+                });
+            }
+            Some((chart, v))
+        } else {
+            None
+        };
+        Ok(Self {
+            base,
+            base_cloth,
+            sizes,
+        })
+    }
+
+    /// The base template cooked for the simulator.
+    pub fn base_cloth(&self) -> &ClothModel {
+        &self.base_cloth
+    }
+
+    /// Whether bodies wear sizes.
+    pub fn graded(&self) -> bool {
+        self.sizes.is_some()
+    }
+
+    /// Names of the sizes (empty without sizes).
+    pub fn size_names(&self) -> Vec<&str> {
+        self.sizes.as_ref().map_or_else(Vec::new, |(_, v)| {
+            v.iter().map(|s| s.name.as_str()).collect()
+        })
+    }
+
+    /// Where the drape of a body of rest shape `shaped` starts.
+    pub fn start(&self, shaped: &ShapedBody<'_>) -> Result<Start<'_>, DatasetError> {
+        let Some((chart, sizes)) = &self.sizes else {
+            return Ok(Start {
+                size: None,
+                template: &self.base,
+                cloth: &self.base_cloth,
+                reference: self.base.reference(),
+            });
+        };
+        let (name, _) = chart.pick(shaped)?;
+        let s = sizes
+            .iter()
+            .find(|s| s.name == name)
+            .expect("the chart's sizes are loaded");
+        Ok(Start {
+            size: Some(&s.name),
+            template: &s.template,
+            cloth: &s.cloth,
+            reference: s.template.reference(),
+        })
+    }
+
+    /// The start of a recorded sample: the size named in its record (the base without
+    /// sizes). Fails if the record names a size this wardrobe does not have.
+    pub fn start_of(&self, size: Option<&str>) -> Result<Start<'_>, DatasetError> {
+        match (&self.sizes, size) {
+            (None, None) => Ok(Start {
+                size: None,
+                template: &self.base,
+                cloth: &self.base_cloth,
+                reference: self.base.reference(),
+            }),
+            (Some((_, sizes)), Some(name)) => {
+                let s = sizes.iter().find(|s| s.name == name).ok_or_else(|| {
+                    DatasetError::Invalid(format!(
+                        "the sample's size {name:?} is not one of the garment's sizes ({})",
+                        self.size_names().join(", ")
+                    ))
+                })?;
+                Ok(Start {
+                    size: Some(&s.name),
+                    template: &s.template,
+                    cloth: &s.cloth,
+                    reference: s.template.reference(),
+                })
+            }
+            (None, Some(name)) => Err(DatasetError::Invalid(format!(
+                "the sample was draped in size {name:?}, but this dataset's config has no sizes"
+            ))),
+            (Some(_), None) => Err(DatasetError::Invalid(
+                "the dataset uses sizes, but the sample's record names none".into(),
+            )),
+        }
+    }
+}
