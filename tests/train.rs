@@ -81,9 +81,34 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
     );
 
-    // Another config into the same folder is refused.
+    // Another length into the same folder is refused, naming the run's; given with
+    // --epochs, the config is the run's and the finished run stays as it is. The
+    // wall-clock cap is per invocation and may change.
     let other = config(tmp.path(), 9, "local", "");
     let (ok, text) = train(&other, &data, &run_dir, &[]);
+    assert!(!ok && text.contains("--epochs 8"), "{text}");
+    let (ok, text) = train(
+        &other,
+        &data,
+        &run_dir,
+        &[
+            "--epochs".as_ref(),
+            "8".as_ref(),
+            "--wall-clock-minutes".as_ref(),
+            "3".as_ref(),
+        ],
+    );
+    assert!(ok, "{text}");
+    assert_eq!(
+        steps_before,
+        std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
+    );
+    // Another config into the same folder is refused.
+    let seed7 = tmp.path().join("seed7.toml");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    assert!(text.contains("seed = 1\n"));
+    std::fs::write(&seed7, text.replace("seed = 1\n", "seed = 7\n")).unwrap();
+    let (ok, text) = train(&seed7, &data, &run_dir, &[]);
     assert!(!ok && text.contains("another config"), "{text}");
 
     // Fine-tuning a Global network from a Local run is refused with both names.

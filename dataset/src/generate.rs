@@ -437,12 +437,13 @@ pub fn generate(
     }
 
     let records = done_records.into_inner().expect("lock");
-    let manifest = Manifest::new(
+    let mut manifest = Manifest::new(
         config,
         opts,
         sha256(&static_bytes),
         mine.iter().map(|s| records[&s.file].clone()).collect(),
     );
+    manifest.size_templates = wardrobe.size_fingerprints();
     let manifest_path = dir.join(manifest_name(opts));
     write_atomic(
         &manifest_path,

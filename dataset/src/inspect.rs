@@ -200,7 +200,10 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest, DatasetError> {
     }
     let first = &parts[&0].1;
     for (i, (d, m)) in &parts {
-        if m.config_sha256 != first.config_sha256 || m.static_sha256 != first.static_sha256 {
+        if m.config_sha256 != first.config_sha256
+            || m.static_sha256 != first.static_sha256
+            || m.size_templates != first.size_templates
+        {
             return Err(DatasetError::Invalid(format!(
                 "part {i} in {} was made from another config or template",
                 d.display()

@@ -80,6 +80,10 @@ pub struct Manifest {
     pub parts: u32,
     /// sha256 of `static.safetensors`.
     pub static_sha256: String,
+    /// With `sizes`: each size's sha256 of its template's vertex positions (f32
+    /// little-endian), so a redrape can check it grades the same sizes (absent otherwise).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub size_templates: BTreeMap<String, String>,
     /// Shards, in plan order.
     pub shards: Vec<ShardRecord>,
 }
@@ -138,6 +142,7 @@ impl Manifest {
             part: opts.part,
             parts: opts.parts,
             static_sha256,
+            size_templates: BTreeMap::new(),
             shards,
         }
     }

@@ -11,6 +11,8 @@ use sim::cloth::ClothModel;
 use sim::garment::template::Template;
 use sim::garment::{Library, SizeChart};
 
+use std::collections::BTreeMap;
+
 use crate::DatasetError;
 use crate::config::DatasetConfig;
 
@@ -104,6 +106,16 @@ impl Wardrobe {
         self.sizes.is_some()
     }
 
+    /// Each size's sha256 of its template's vertex positions (f32 little-endian; empty
+    /// without sizes): what the manifest records and a redrape checks.
+    pub fn size_fingerprints(&self) -> BTreeMap<String, String> {
+        self.sizes.as_ref().map_or_else(BTreeMap::new, |(_, v)| {
+            v.iter()
+                .map(|s| (s.name.clone(), fingerprint(&s.template)))
+                .collect()
+        })
+    }
+
     /// Names of the sizes (empty without sizes).
     pub fn size_names(&self) -> Vec<&str> {
         self.sizes.as_ref().map_or_else(Vec::new, |(_, v)| {
@@ -166,4 +178,16 @@ impl Wardrobe {
             )),
         }
     }
+}
+
+/// sha256 of a template's vertex positions (f32 little-endian).
+fn fingerprint(t: &Template) -> String {
+    let bytes: Vec<u8> = t
+        .mesh
+        .vertices
+        .iter()
+        .flat_map(|v| v.to_array())
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    crate::generate::sha256(&bytes)
 }

@@ -151,10 +151,10 @@ impl Plan {
                 return Err(format!("run {}: epochs must be at least 1", r.key));
             }
             if r.wall_clock_minutes
-                .is_some_and(|m| !(m > 0.0) || !m.is_finite())
+                .is_some_and(|m| m.is_nan() || m < 0.0 || m.is_infinite())
             {
                 return Err(format!(
-                    "run {}: wall_clock_minutes must be positive",
+                    "run {}: wall_clock_minutes must be >= 0 (0: no cap)",
                     r.key
                 ));
             }
@@ -683,6 +683,15 @@ pub fn machine() -> String {
     format!("{cpu}, {cores} cores, {mem}")
 }
 
+/// The epochs run `key` under `out` was trained for, from its saved config (None before it
+/// starts).
+fn trained_epochs(out: &Path, key: &str) -> Option<usize> {
+    let saved = out.join("runs").join(key).join("config.toml");
+    learn::config::TrainConfig::load(&saved)
+        .ok()
+        .map(|c| c.epochs)
+}
+
 /// Writes `docs/reproduction.md` and `docs/reproduction.json` from what the stages under
 /// `out` produced. Cells whose stage has not run show a dash. Returns the files written.
 pub fn write_report(
@@ -710,7 +719,7 @@ pub fn write_report(
         machine(),
         plan.runs
             .iter()
-            .map(|r| match r.epochs {
+            .map(|r| match trained_epochs(out, &r.key).or(r.epochs) {
                 Some(e) => format!("`{}` ({e} epochs)", r.key),
                 None => format!("`{}`", r.key),
             })

@@ -2,8 +2,9 @@
 //! on the same test samples, at the same vertex count, with the simulator config that made
 //! the dataset.
 //!
-//! - Simulator, full drape (the paper's PBS): from the template on the canonical body,
-//!   morphing to the sample's shape and pose, then settling (the dataset's protocol).
+//! - Simulator, full drape (the paper's PBS): from the template on the canonical body (or,
+//!   for a dataset in sizes, the sample's size on its reference body), morphing to the
+//!   sample's shape and pose, then settling (the dataset's protocol).
 //! - Simulator, PBS-dagger: from the DQS-warped garment M with the body already in the
 //!   target pose, settling only.
 //! - Network: the DQS warp, the inputs (body normals, the k-NN searches of GarNet-Local)
@@ -229,20 +230,21 @@ impl<'w> Redraper<'w> {
                 theirs.len()
             )));
         }
-        if config.sizes != wardrobe.graded() {
+        // The sizes graded here must be the ones the dataset was draped in.
+        let ours = wardrobe.size_fingerprints();
+        let theirs = &data.manifest.size_templates;
+        if &ours != theirs {
+            let differ: std::collections::BTreeSet<&str> = ours
+                .keys()
+                .chain(theirs.keys())
+                .filter(|k| ours.get(*k) != theirs.get(*k))
+                .map(String::as_str)
+                .collect();
             return Err(EvalError::Invalid(format!(
-                "{} was {} sizes, the garment loaded here {}",
+                "the {} sizes graded here differ from the ones {} was draped in (sizes {}): regrade them with the program that made the dataset, or regenerate it",
+                config.garment,
                 data.dir.display(),
-                if config.sizes {
-                    "draped in"
-                } else {
-                    "made without"
-                },
-                if wardrobe.graded() {
-                    "has them"
-                } else {
-                    "has none"
-                }
+                differ.into_iter().collect::<Vec<_>>().join(", ")
             )));
         }
         let sizes = data
@@ -327,10 +329,10 @@ pub fn measure(
             vertices: posed.vertices.clone(),
             triangles: model.triangles.clone(),
         };
-        // PBS-dagger starts from the warp M, the network's input: the base template's.
-        let base_cloth = wardrobe.base_cloth();
+        // PBS-dagger starts from the warp M (the network's input, the base template's
+        // warp) with the cloth the dataset draped: the size's rest lengths.
         let dagger = drape::drape(
-            base_cloth,
+            start.cloth,
             &row.warped,
             &still,
             &config.sim,

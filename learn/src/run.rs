@@ -62,12 +62,24 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
     let text = toml::to_string(config).expect("serialisable config");
     match std::fs::read_to_string(&cp) {
         Ok(old) => {
-            let old: TrainConfig = toml::from_str(&old)
+            let mut old: TrainConfig = toml::from_str(&old)
                 .map_err(|e| LearnError::Config(format!("{}: {e}", cp.display())))?;
+            // The wall-clock cap is per invocation: a resumed run may have another.
+            old.wall_clock_minutes = config.wall_clock_minutes;
+            if old.epochs != config.epochs {
+                return Err(LearnError::Mismatch(format!(
+                    "{} is a run of {} epochs, this invocation asks for {}; resume with --epochs {} (or use another -o folder)",
+                    run.display(),
+                    old.epochs,
+                    config.epochs,
+                    old.epochs
+                )));
+            }
             if &old != config {
                 return Err(LearnError::Mismatch(format!(
-                    "{} holds a run of another config; use another -o folder, or delete it",
-                    run.display()
+                    "{} holds a run of another config ({} records it); use another -o folder, or delete it",
+                    run.display(),
+                    cp.display()
                 )));
             }
         }

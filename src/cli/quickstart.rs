@@ -139,7 +139,7 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     let params = learn::data::body_params(&drawn.shape.values(), &drawn.pose.rotations);
     let timed = eval::speed::network_drape(
         &net,
-        &template,
+        template,
         &canonical,
         &shaped,
         &posed,
