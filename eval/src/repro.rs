@@ -720,6 +720,7 @@ pub fn write_report(
         plan.runs
             .iter()
             .map(|r| match trained_epochs(out, &r.key).or(r.epochs) {
+                Some(1) => format!("`{}` (1 epoch)", r.key),
                 Some(e) => format!("`{}` ({e} epochs)", r.key),
                 None => format!("`{}`", r.key),
             })
