@@ -96,16 +96,6 @@ impl Wardrobe {
         })
     }
 
-    /// The base template cooked for the simulator.
-    pub fn base_cloth(&self) -> &ClothModel {
-        &self.base_cloth
-    }
-
-    /// Whether bodies wear sizes.
-    pub fn graded(&self) -> bool {
-        self.sizes.is_some()
-    }
-
     /// Each size's sha256 of its template's vertex positions (f32 little-endian; empty
     /// without sizes): what the manifest records and a redrape checks.
     pub fn size_fingerprints(&self) -> BTreeMap<String, String> {
@@ -116,34 +106,13 @@ impl Wardrobe {
         })
     }
 
-    /// Names of the sizes (empty without sizes).
-    pub fn size_names(&self) -> Vec<&str> {
-        self.sizes.as_ref().map_or_else(Vec::new, |(_, v)| {
-            v.iter().map(|s| s.name.as_str()).collect()
-        })
-    }
-
-    /// Where the drape of a body of rest shape `shaped` starts.
+    /// Where the drape of a body of rest shape `shaped` starts: the size the chart picks
+    /// for it (the base without sizes).
     pub fn start(&self, shaped: &ShapedBody<'_>) -> Result<Start<'_>, DatasetError> {
-        let Some((chart, sizes)) = &self.sizes else {
-            return Ok(Start {
-                size: None,
-                template: &self.base,
-                cloth: &self.base_cloth,
-                reference: self.base.reference(),
-            });
-        };
-        let (name, _) = chart.pick(shaped)?;
-        let s = sizes
-            .iter()
-            .find(|s| s.name == name)
-            .expect("the chart's sizes are loaded");
-        Ok(Start {
-            size: Some(&s.name),
-            template: &s.template,
-            cloth: &s.cloth,
-            reference: s.template.reference(),
-        })
+        match &self.sizes {
+            None => self.start_of(None),
+            Some((chart, _)) => self.start_of(Some(&chart.pick(shaped)?.0)),
+        }
     }
 
     /// The start of a recorded sample: the size named in its record (the base without
@@ -158,9 +127,10 @@ impl Wardrobe {
             }),
             (Some((_, sizes)), Some(name)) => {
                 let s = sizes.iter().find(|s| s.name == name).ok_or_else(|| {
+                    let names: Vec<&str> = sizes.iter().map(|s| s.name.as_str()).collect();
                     DatasetError::Invalid(format!(
                         "the sample's size {name:?} is not one of the garment's sizes ({})",
-                        self.size_names().join(", ")
+                        names.join(", ")
                     ))
                 })?;
                 Ok(Start {

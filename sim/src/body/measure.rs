@@ -245,17 +245,14 @@ impl ShapedBody<'_> {
                 self.params
             ))
         };
+        let band = |lo: f32, hi: f32| profile.iter().filter(move |p| p.y >= lo && p.y <= hi);
         let max_in = |lo: f32, hi: f32| {
-            profile
-                .iter()
-                .filter(|p| p.y >= lo && p.y <= hi)
+            band(lo, hi)
                 .max_by(|a, b| a.girth.total_cmp(&b.girth))
                 .copied()
         };
         let min_in = |lo: f32, hi: f32| {
-            profile
-                .iter()
-                .filter(|p| p.y >= lo && p.y <= hi)
+            band(lo, hi)
                 .min_by(|a, b| a.girth.total_cmp(&b.girth))
                 .copied()
         };
