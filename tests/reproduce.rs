@@ -145,6 +145,41 @@ samples = 1
         metrics["provenance"]["manifest_sha256"]
     );
     assert!(cell["run_config_sha256"].as_str().unwrap().len() == 64);
+    // The speed-up section: the batch-1 speed-up over the full drape is the bench's PBS
+    // mean over its network time, in the table and in the JSON.
+    let speed: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("speedup/tshirt-local.json")).unwrap())
+            .unwrap();
+    let sample = &speed["samples"][0];
+    let net = ["warp", "inputs", "network"]
+        .iter()
+        .map(|k| sample[k].as_f64().unwrap())
+        .sum::<f64>();
+    let ratio = sample["pbs"].as_f64().unwrap() / net;
+    assert!(md.contains("## Speed-up over the simulator"), "{md}");
+    assert!(md.contains(&format!(" | {ratio:.1}x / ")), "{ratio} {md}");
+    let number = |row: &str, column: &str, metric: &str| {
+        json["numbers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|n| n["row"] == row && n["column"] == column && n["metric"] == metric)
+            .unwrap_or_else(|| panic!("{row} {column} {metric} missing"))["ours"]
+            .as_f64()
+            .unwrap()
+    };
+    let x = number("tshirt-local", "speed-up", "speed-up over PBS at batch 1");
+    assert!((x - ratio).abs() < 1e-9 * ratio, "{x} {ratio}");
+    // The baselines of the T-shirt come from GarNet-Local's evaluation.
+    let dqs = metrics["summaries"]["dqs"]["edist_cm"][0].as_f64().unwrap();
+    assert!(md.contains(&format!("| DQS | {dqs:.2} /")), "{md}");
+    assert!((number("DQS", "baselines T-shirt", "Edist") - dqs).abs() < 1e-12);
+    // What no run of the plan feeds is named, not shown as a table of dashes.
+    assert!(
+        md.contains("## Outside this plan") && md.contains("the loss ablation"),
+        "{md}"
+    );
+    assert!(!md.contains("## Loss ablation"), "{md}");
     // Table 2 has our simulator time; the budget table lists every stage as done.
     assert!(
         md.contains("| gen tshirt | 0.01 |") && md.contains("| train tshirt-local-rq |"),
@@ -184,6 +219,35 @@ samples = 1
         serde_json::from_slice(&std::fs::read(out.join("stages.json")).unwrap()).unwrap();
     assert_eq!(again["seconds"], ledger["seconds"]);
     assert_eq!(again["machine_seconds"], ledger["machine_seconds"]);
+
+    // A plan may name its report's folder; --docs overrides it.
+    std::fs::write(
+        dir.join("own.toml"),
+        plan(1.0).replace(
+            "parallel_runs = 2",
+            &format!(
+                "parallel_runs = 2\ndocs = \"{}\"",
+                dir.join("own").display()
+            ),
+        ),
+    )
+    .unwrap();
+    let (ok, text) = run(drape()
+        .arg("reproduce")
+        .arg(dir.join("own.toml"))
+        .arg("-o")
+        .arg(&out)
+        .arg("--report-only"));
+    assert!(ok && !text.contains("== "), "{text}");
+    let own = std::fs::read_to_string(dir.join("own/reproduction.md")).unwrap();
+    // The same report but for the plan's name in its first lines.
+    let body = |m: &str| {
+        m.lines()
+            .filter(|l| !l.starts_with("Made by"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    assert_eq!(body(&own), body(&md));
 
     // A spent budget stops a plan before its next stage.
     std::fs::write(

@@ -82,6 +82,11 @@ pub struct Plan {
     pub parallel_runs: usize,
     /// The speed-up measurement.
     pub speedup: PlanSpeedup,
+    /// Folder the report (reproduction.md and .json) goes to, default `docs`; a plan
+    /// that covers part of the paper names its own, so that it does not overwrite another
+    /// plan's report.
+    #[serde(default)]
+    pub docs: Option<PathBuf>,
 }
 
 fn one() -> usize {
@@ -746,33 +751,37 @@ pub fn write_report(
         Some(false) => "**does not hold**",
         None => "not measured yet",
     };
-    writeln!(w, "## The claims, on held-out T-shirt test bodies\n").unwrap();
-    writeln!(w, "| claim | measured | verdict |\n|---|---|---|").unwrap();
-    let order = local
-        .zip(global)
-        .zip(naive)
-        .map(|((l, g), n)| l <= g && g < n);
-    writeln!(
-        w,
-        "| Local <= Global < Naive (Edist) | {} / {} / {} cm | {} |",
-        fmt(local, 2),
-        fmt(global, 2),
-        fmt(naive, 2),
-        verdict(order)
-    )
-    .unwrap();
-    writeln!(
-        w,
-        "| the data is not trivially easy: DQS Edist >= 5 cm | {} cm | {} |",
-        fmt(dqs, 2),
-        verdict(dqs.map(|d| d >= 5.0))
-    )
-    .unwrap();
-    let beats = local
-        .zip(mean_res)
-        .zip(nn)
-        .map(|((l, m), n)| l <= 0.7 * m && l <= 0.7 * n);
-    writeln!(
+    let in_plan = |k: &str| plan.runs.iter().any(|r| r.key == k);
+    if !in_plan("tshirt-local") {
+        writeln!(w, "## The claims\n\nThe paper's claims are judged on held-out T-shirt test bodies, and this plan does not train `tshirt-local`: they are in the report of a plan that does (configs/repro/session.toml writes docs/reproduction.md).\n").unwrap();
+    } else {
+        writeln!(w, "## The claims, on held-out T-shirt test bodies\n").unwrap();
+        writeln!(w, "| claim | measured | verdict |\n|---|---|---|").unwrap();
+        let order = local
+            .zip(global)
+            .zip(naive)
+            .map(|((l, g), n)| l <= g && g < n);
+        writeln!(
+            w,
+            "| Local <= Global < Naive (Edist) | {} / {} / {} cm | {} |",
+            fmt(local, 2),
+            fmt(global, 2),
+            fmt(naive, 2),
+            verdict(order)
+        )
+        .unwrap();
+        writeln!(
+            w,
+            "| the data is not trivially easy: DQS Edist >= 5 cm | {} cm | {} |",
+            fmt(dqs, 2),
+            verdict(dqs.map(|d| d >= 5.0))
+        )
+        .unwrap();
+        let beats = local
+            .zip(mean_res)
+            .zip(nn)
+            .map(|((l, m), n)| l <= 0.7 * m && l <= 0.7 * n);
+        writeln!(
         w,
         "| Local beats the mean-residual and nearest-neighbour baselines by >= 30% | {} vs {} and {} cm | {} |",
         fmt(local, 2),
@@ -781,7 +790,7 @@ pub fn write_report(
         verdict(beats)
     )
     .unwrap();
-    writeln!(
+        writeln!(
         w,
         "| Local Edist < 1.0 cm and Enorm < 12° (paper: 0.56 cm, 8.34° on 10k vertices) | {} cm, {}° | {} |",
         fmt(local, 2),
@@ -789,7 +798,7 @@ pub fn write_report(
         verdict(local.zip(enorm).map(|(d, a)| d < 1.0 && a < 12.0))
     )
     .unwrap();
-    writeln!(
+        writeln!(
         w,
         "| -RQ lowers L_RQ by >= 30%, Edist rises <= 0.15 cm | L_RQ x{}, Edist {} -> {} cm | {} |\n",
         fmt(rq_rq.zip(rq_local).map(|(a, b)| a / b), 2),
@@ -803,16 +812,23 @@ pub fn write_report(
         )
     )
     .unwrap();
-    let vertices = r
-        .evals
-        .get("tshirt-local")
-        .and_then(|e| e["vertices"].as_u64())
-        .map_or("–".to_string(), |v| v.to_string());
-    writeln!(w, "Enorm on our {vertices}-vertex meshes is not directly comparable with the paper's 10k-vertex Enorm: finer meshes have smaller angles between neighbouring faces.\n").unwrap();
+        let vertices = r
+            .evals
+            .get("tshirt-local")
+            .and_then(|e| e["vertices"].as_u64())
+            .map_or("–".to_string(), |v| v.to_string());
+        writeln!(w, "Enorm on our {vertices}-vertex meshes is not directly comparable with the paper's 10k-vertex Enorm: finer meshes have smaller angles between neighbouring faces.\n").unwrap();
+    }
 
     // The paper's tables beside ours.
+    // Tables none of whose cells come from a run of this plan are only named.
+    let mut outside: Vec<String> = Vec::new();
     for t in &tables {
         if !t.transcribed {
+            continue;
+        }
+        if !t.cells.iter().any(|c| in_plan(&ours_for(t, c, &r).1)) {
+            outside.push(format!("Table {}", t.number));
             continue;
         }
         writeln!(w, "## Table {}\n\n{}\n", t.number, t.caption).unwrap();
@@ -894,47 +910,136 @@ pub fn write_report(
         writeln!(w).unwrap();
     }
 
-    // Baselines and the loss ablation (ours only).
-    writeln!(w, "## Baselines (T-shirt, GarNet-Local's evaluation)\n").unwrap();
-    writeln!(w, "| method | Edist (cm) | Enorm (°) |\n|---|---|---|").unwrap();
-    for (m, name) in [
-        ("network", "GarNet-Local"),
-        ("dqs", "DQS"),
-        ("mean-residual", "Mean residual"),
-        ("nearest-neighbour", "Nearest neighbour"),
-    ] {
-        let (d, a) = (
-            f("tshirt-local", m, "edist_cm"),
-            f("tshirt-local", m, "enorm_deg"),
-        );
-        writeln!(w, "| {name} | {} | {} |", fmt(d, 2), fmt(a, 2)).unwrap();
-        for (metric, v) in [("Edist", d), ("Enorm", a)] {
-            let (cfg, man, git) = provenance(&r, "tshirt-local");
-            numbers.push(Number {
-                table: 0,
-                row: name.into(),
-                column: "baselines".into(),
-                metric: metric.into(),
-                ours: v,
-                paper: None,
-                run: "tshirt-local".into(),
-                run_config_sha256: cfg,
-                manifest_sha256: man,
-                git_revision: git,
-            });
+    // The speed-up of every timed run (the paper's 100x claim).
+    if !r.speed.is_empty() {
+        writeln!(
+            w,
+            "## Speed-up over the simulator (the paper's 100x claim)\n"
+        )
+        .unwrap();
+        writeln!(w, "`drape bench speedup` on the run's test samples, in one process: the simulator with the config that made the dataset (PBS: the full drape from the template; PBS†: from the DQS warp with the body already posed) and the network (the DQS warp, the k-NN searches and both streams), at the same vertex count and thread count. Simulator times are means over the drapes that converged.\n").unwrap();
+        writeln!(w, "| run | vertices | threads | PBS (s) | PBS† (s) | network, batch 1 (ms) | speed-up over PBS / PBS† | per drape at batch B (ms) | speed-up at batch B | GFLOPs |\n|---|---|---|---|---|---|---|---|---|---|").unwrap();
+        let mut best: Option<(f64, &str)> = None;
+        for (key, s) in &r.speed {
+            let (pbs, dagger, one) = (s.pbs(), s.pbs_dagger(), s.network_batch1());
+            let many = s.batched_per_drape;
+            let ok = |x: f64| Some(x).filter(|x| x.is_finite());
+            if let Some(x) = ok(pbs / one) {
+                if best.is_none_or(|(b, _)| x > b) {
+                    best = Some((x, key.as_str()));
+                }
+            }
+            writeln!(
+                w,
+                "| `{key}` | {} | {} | {} | {} | {} | {}x / {}x | {} (B = {}) | {}x | {} |",
+                s.vertices,
+                s.threads,
+                fmt(ok(pbs), 3),
+                fmt(ok(dagger), 3),
+                fmt(ok(one * 1e3), 1),
+                fmt(ok(pbs / one), 1),
+                fmt(ok(dagger / one), 1),
+                fmt(ok(many * 1e3), 1),
+                s.batch,
+                fmt(ok(pbs / many), 1),
+                fmt(ok(s.flops / 1e9), 2),
+            )
+            .unwrap();
+            let (cfg, man, git) = provenance(&r, key);
+            for (metric, v) in [
+                ("PBS (s)", ok(pbs)),
+                ("PBS-dagger (s)", ok(dagger)),
+                ("network batch 1 (s)", ok(one)),
+                ("speed-up over PBS at batch 1", ok(pbs / one)),
+                ("speed-up over PBS-dagger at batch 1", ok(dagger / one)),
+                ("network per drape at the batch (s)", ok(many)),
+                ("speed-up over PBS at the batch", ok(pbs / many)),
+            ] {
+                numbers.push(Number {
+                    table: 0,
+                    row: key.clone(),
+                    column: "speed-up".into(),
+                    metric: metric.into(),
+                    ours: v,
+                    paper: None,
+                    run: key.clone(),
+                    run_config_sha256: cfg.clone(),
+                    manifest_sha256: man.clone(),
+                    git_revision: git.clone(),
+                });
+            }
+        }
+        if let Some((x, key)) = best {
+            writeln!(
+                w,
+                "\nThe 100x claim {} on this machine: the largest speed-up over the full simulated drape at batch 1 is {x:.1}x (`{key}`).\n",
+                if x >= 100.0 { "holds" } else { "**does not hold**" }
+            )
+            .unwrap();
+        } else {
+            writeln!(w).unwrap();
         }
     }
-    writeln!(
-        w,
-        "\n## Loss ablation (T-shirt; the spirit of the paper's Table 5)\n"
-    )
-    .unwrap();
-    writeln!(
-        w,
-        "| losses | run | Edist (cm) | Enorm (°) |\n|---|---|---|---|"
-    )
-    .unwrap();
-    for (label, key) in [
+
+    // Baselines of every garment whose GarNet-Local is in the plan (ours only).
+    let garments: Vec<(&str, String)> = ["T-shirt", "Sweater", "Dress", "Jeans"]
+        .into_iter()
+        .filter_map(|c| garment_key(c).map(|g| (c, format!("{g}-local"))))
+        .filter(|(_, k)| in_plan(k))
+        .collect();
+    if !garments.is_empty() {
+        writeln!(
+            w,
+            "## Baselines (each garment's held-out test bodies, GarNet-Local's evaluation)\n"
+        )
+        .unwrap();
+        writeln!(
+            w,
+            "Edist (cm) / Enorm (°). Mean residual: DQS plus the training set's mean displacement; nearest neighbour: the displacement of the training sample with the closest shape and pose.\n"
+        )
+        .unwrap();
+        writeln!(
+            w,
+            "| method | {} |\n|---|{}",
+            garments
+                .iter()
+                .map(|(c, _)| *c)
+                .collect::<Vec<_>>()
+                .join(" | "),
+            "---|".repeat(garments.len())
+        )
+        .unwrap();
+        for (m, name) in [
+            ("network", "GarNet-Local"),
+            ("dqs", "DQS"),
+            ("mean-residual", "Mean residual"),
+            ("nearest-neighbour", "Nearest neighbour"),
+        ] {
+            let mut line = format!("| {name} |");
+            for (column, key) in &garments {
+                let (d, a) = (f(key, m, "edist_cm"), f(key, m, "enorm_deg"));
+                write!(line, " {} / {} |", fmt(d, 2), fmt(a, 2)).unwrap();
+                for (metric, v) in [("Edist", d), ("Enorm", a)] {
+                    let (cfg, man, git) = provenance(&r, key);
+                    numbers.push(Number {
+                        table: 0,
+                        row: name.into(),
+                        column: format!("baselines {column}"),
+                        metric: metric.into(),
+                        ours: v,
+                        paper: None,
+                        run: key.clone(),
+                        run_config_sha256: cfg,
+                        manifest_sha256: man,
+                        git_revision: git,
+                    });
+                }
+            }
+            writeln!(w, "{line}").unwrap();
+        }
+        writeln!(w).unwrap();
+    }
+    let ablation = [
         ("L_vert", "tshirt-local-abl-vert"),
         ("L_vert + L_pen", "tshirt-local-abl-vert-pen"),
         ("L_vert + L_pen + L_norm", "tshirt-local-abl-vert-pen-norm"),
@@ -943,29 +1048,53 @@ pub fn write_report(
             "tshirt-local",
         ),
         ("... + L_RQ (GarNet-Local-RQ)", "tshirt-local-rq"),
-    ] {
-        let (d, a) = (
-            f(key, "network", "edist_cm"),
-            f(key, "network", "enorm_deg"),
-        );
-        writeln!(w, "| {label} | `{key}` | {} | {} |", fmt(d, 2), fmt(a, 2)).unwrap();
-        for (metric, v) in [("Edist", d), ("Enorm", a)] {
-            let (cfg, man, git) = provenance(&r, key);
-            numbers.push(Number {
-                table: 0,
-                row: label.into(),
-                column: "loss ablation".into(),
-                metric: metric.into(),
-                ours: v,
-                paper: None,
-                run: key.into(),
-                run_config_sha256: cfg,
-                manifest_sha256: man,
-                git_revision: git,
-            });
+    ];
+    if !ablation[..3].iter().any(|(_, k)| in_plan(k)) {
+        outside.push("the loss ablation".into());
+    } else {
+        writeln!(
+            w,
+            "## Loss ablation (T-shirt; the spirit of the paper's Table 5)\n"
+        )
+        .unwrap();
+        writeln!(
+            w,
+            "| losses | run | Edist (cm) | Enorm (°) |\n|---|---|---|---|"
+        )
+        .unwrap();
+        for (label, key) in ablation {
+            let (d, a) = (
+                f(key, "network", "edist_cm"),
+                f(key, "network", "enorm_deg"),
+            );
+            writeln!(w, "| {label} | `{key}` | {} | {} |", fmt(d, 2), fmt(a, 2)).unwrap();
+            for (metric, v) in [("Edist", d), ("Enorm", a)] {
+                let (cfg, man, git) = provenance(&r, key);
+                numbers.push(Number {
+                    table: 0,
+                    row: label.into(),
+                    column: "loss ablation".into(),
+                    metric: metric.into(),
+                    ours: v,
+                    paper: None,
+                    run: key.into(),
+                    run_config_sha256: cfg,
+                    manifest_sha256: man,
+                    git_revision: git,
+                });
+            }
         }
+        writeln!(w).unwrap();
     }
-    writeln!(w, "\n## Tables not reproduced\n").unwrap();
+    if !outside.is_empty() {
+        writeln!(
+            w,
+            "## Outside this plan\n\nNo run of this plan feeds {}; configs/repro/cpu.toml plans the runs of every one.\n",
+            outside.join(", ")
+        )
+        .unwrap();
+    }
+    writeln!(w, "## Tables not reproduced\n").unwrap();
     for t in tables.iter().filter(|t| !t.transcribed) {
         writeln!(
             w,
@@ -1165,5 +1294,58 @@ mod tests {
             }
         }
         assert_eq!(Ledger::default().hours().to_string(), "0");
+    }
+
+    #[test]
+    fn a_plan_without_the_tshirt_points_to_the_claims_and_names_what_it_leaves_out() {
+        let plan: Plan = toml::from_str(
+            r#"name = "garments"
+budget_hours = 1.0
+eval_planned_hours = 0.1
+docs = "elsewhere"
+[[datasets]]
+key = "sweater"
+config = "cpu-reference-sweater"
+planned_hours = 0.1
+[[runs]]
+key = "sweater-local"
+config = "configs/train/sweater-local.toml"
+data = "sweater"
+planned_hours = 0.1
+[speedup]
+runs = ["sweater-local"]
+samples = 1
+"#,
+        )
+        .unwrap();
+        plan.validate().unwrap();
+        assert_eq!(plan.docs.as_deref(), Some(Path::new("elsewhere")));
+        let out = scratch("partial").parent().unwrap().to_path_buf();
+        let docs = out.join("docs");
+        write_report(
+            &plan,
+            Path::new("garments.toml"),
+            &out,
+            &Ledger::default(),
+            &docs,
+        )
+        .unwrap();
+        let md = std::fs::read_to_string(docs.join("reproduction.md")).unwrap();
+        assert!(md.contains("does not train `tshirt-local`"), "{md}");
+        assert!(!md.contains("| Local <= Global < Naive"), "{md}");
+        // Tables with a sweater GarNet-Local cell are drawn; the T-shirt-only ones (the
+        // speed table, the RQ neighbourhoods, the fine-tunes' comparison) are named.
+        for t in [1, 3, 7, 8] {
+            assert!(md.contains(&format!("## Table {t}\n")), "table {t}: {md}");
+        }
+        for t in [2, 6, 9] {
+            assert!(!md.contains(&format!("## Table {t}\n")), "table {t}: {md}");
+        }
+        assert!(
+            md.contains("feeds Table 2, Table 6, Table 9, the loss ablation;"),
+            "{md}"
+        );
+        // The baselines have the sweater's column only.
+        assert!(md.contains("| method | Sweater |"), "{md}");
     }
 }

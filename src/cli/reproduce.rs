@@ -26,9 +26,10 @@ pub struct ReproduceArgs {
     /// Working folder: data/, runs/, eval/, speedup/, stages.json (default runs/repro-NAME).
     #[arg(short, long, value_name = "DIR")]
     output: Option<PathBuf>,
-    /// Where the report goes: reproduction.md and reproduction.json (default docs/).
-    #[arg(long, value_name = "DIR", default_value = "docs")]
-    docs: PathBuf,
+    /// Where the report goes: reproduction.md and reproduction.json (default: the plan's
+    /// `docs`, else docs/).
+    #[arg(long, value_name = "DIR")]
+    docs: Option<PathBuf>,
     /// Only write the report from what is finished; run nothing.
     #[arg(long)]
     report_only: bool,
@@ -181,7 +182,12 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     let ledger = clock.into_inner().unwrap_or_else(|e| e.into_inner()).ledger;
     ledger.save(&ledger_path)?;
     r?;
-    let written = eval::repro::write_report(&plan, &args.plan, &out, &ledger, &args.docs)?;
+    let docs = args
+        .docs
+        .clone()
+        .or_else(|| plan.docs.clone())
+        .unwrap_or_else(|| PathBuf::from("docs"));
+    let written = eval::repro::write_report(&plan, &args.plan, &out, &ledger, &docs)?;
     for f in written {
         println!("wrote {}", f.display());
     }
