@@ -626,3 +626,43 @@ fn a_child_whose_reproduce_parent_is_gone_stops() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(obj.exists());
 }
+
+/// Jeans that come to rest at the feet (sample random:4 of the checks: a slim body in a
+/// wide stance; docs/garments.md, "Sliding") have converged as cloth, but not on the body:
+/// the drape fails as slid down, while the next sample's jeans hang from the hips.
+#[test]
+fn a_drape_that_slides_off_the_body_is_a_failure() {
+    let out = tempfile::tempdir().unwrap();
+    let report = out.path().join("check.json");
+    let o = drape(&[
+        "garment",
+        "check",
+        "jeans",
+        "--seed",
+        "4",
+        "--samples",
+        "2",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let (slid, held) = (&r["drapes"][0], &r["drapes"][1]);
+    assert_eq!(slid["case"], "random:4");
+    assert_eq!(slid["converged"], false);
+    assert!(
+        slid["failure"]
+            .as_str()
+            .unwrap()
+            .starts_with("slid down the body"),
+        "{slid}"
+    );
+    // The waistband ends over a metre below the hips; hanging jeans end a few cm below the
+    // warp's waistband.
+    assert!(slid["top_drop_cm"].as_f64().unwrap() > 100.0, "{slid}");
+    assert_eq!(held["converged"], true, "{held}");
+    let d = held["top_drop_cm"].as_f64().unwrap();
+    assert!((0.0..15.0).contains(&d), "{held}");
+    assert_eq!(r["summary"]["share_slid"], 0.5);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("slid down"));
+}

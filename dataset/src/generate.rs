@@ -119,6 +119,8 @@ struct Job<'a> {
     wardrobe: &'a Wardrobe,
     poser: Poser,
     canonical: sim::body::ShapedBody<'a>,
+    /// The garment's top opening, to judge whether a drape slid down.
+    top: Vec<u32>,
 }
 
 impl<'a> Job<'a> {
@@ -135,6 +137,7 @@ impl<'a> Job<'a> {
             wardrobe,
             poser: Poser::new(config, model, library)?,
             canonical: model.shape(&ShapeParams::default())?,
+            top: wardrobe.base.top_opening(),
         })
     }
 
@@ -158,7 +161,7 @@ impl<'a> Job<'a> {
             c.sim.morph_frames,
         )?;
         // One thread per drape: threads go across drapes, and the bits do not depend on it.
-        let d = drape::drape(
+        let mut d = drape::drape(
             start.cloth,
             &start.template.mesh.vertices,
             &motion,
@@ -166,6 +169,9 @@ impl<'a> Job<'a> {
             false,
             &mut |_| {},
         );
+        // A drape that came to rest off the body (trousers at the feet) is a failure too.
+        d.report
+            .judge_top_drop(sim::garment::top_drop(&self.top, &warped, &d.positions));
         let ok = d.report.converged;
         let record = SampleRecord {
             plan,

@@ -521,7 +521,7 @@ fn check(
         }
     }
     let t = wardrobe.loaded(&base);
-    let top = top_opening(t);
+    let top = t.top_opening();
     // The second part of a two-part garment (the dress's skirt), measured on its own too
     // (sizes share the base's vertices).
     let second = match sim::garment::built_in(name) {
@@ -580,7 +580,9 @@ fn check(
                     }),
                 }));
             }
-            let d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
+            let mut d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
+            d.report
+                .judge_top_drop(sim::garment::top_drop(&top, &warp, &d.positions));
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
@@ -595,7 +597,7 @@ fn check(
                 "strain_max": r.strain.max,
                 "inside_after": r.penetration.count,
                 "deepest_mm": r.penetration.max_depth * 1e3,
-                "top_drop_cm": top_drop_cm(&top, &warp, &d.positions),
+                "top_drop_cm": r.top_drop.map(|x| x * 100.0),
                 "warp_edges_over_30pct": warp_over,
             }))
         })
@@ -685,21 +687,22 @@ fn check(
         "strain_p95_max": p95.iter().copied().fold(0.0, f64::max),
         "share_p95_below_3pct": p95.iter().filter(|&&x| x < 0.03).count() as f64 / n,
         "share_p95_below_5pct": p95.iter().filter(|&&x| x < 0.05).count() as f64 / n,
-        "slid_cm": SLID_CM,
-        "share_slid": f("top_drop_cm").iter().filter(|&&x| x > SLID_CM).count() as f64 / n,
+        "max_top_drop_cm": sim::cloth::drape::MAX_TOP_DROP * 100.0,
+        "share_slid": f("top_drop_cm").iter().filter(|&&x| x > f64::from(sim::cloth::drape::MAX_TOP_DROP) * 100.0).count() as f64 / n,
         "seconds_per_drape_mean": f("seconds").iter().sum::<f64>() / n,
         "warp_edges_over_30pct_mean": f("warp_edges_over_30pct").iter().sum::<f64>() / n,
         "warp_edges_over_30pct_max": f("warp_edges_over_30pct").into_iter().fold(0.0, f64::max),
         "wall_seconds": t0.elapsed().as_secs_f64(),
     });
     println!(
-        "converged {:.0}%; deepest {:.2} mm; strain p95 mean {:.2}%, max {:.2}%, below 3% in {:.0}% and below 5% in {:.0}% of drapes; slid down (top opening over {SLID_CM} cm below the warp's) in {:.0}%; {:.2} s per drape (one thread each); DQS warp stretches {:.2}% of edges by >30% on average (max {:.2}%); {:.0} s in all",
+        "converged {:.0}%; deepest {:.2} mm; strain p95 mean {:.2}%, max {:.2}%, below 3% in {:.0}% and below 5% in {:.0}% of drapes; slid down (top opening over {:.0} cm below the warp's) in {:.0}%; {:.2} s per drape (one thread each); DQS warp stretches {:.2}% of edges by >30% on average (max {:.2}%); {:.0} s in all",
         summary["converged_share"].as_f64().unwrap_or(0.0) * 100.0,
         summary["deepest_mm"].as_f64().unwrap_or(0.0),
         summary["strain_p95_mean"].as_f64().unwrap_or(0.0) * 100.0,
         summary["strain_p95_max"].as_f64().unwrap_or(0.0) * 100.0,
         summary["share_p95_below_3pct"].as_f64().unwrap_or(0.0) * 100.0,
         summary["share_p95_below_5pct"].as_f64().unwrap_or(0.0) * 100.0,
+        summary["max_top_drop_cm"].as_f64().unwrap_or(0.0),
         summary["share_slid"].as_f64().unwrap_or(0.0) * 100.0,
         summary["seconds_per_drape_mean"].as_f64().unwrap_or(0.0),
         summary["warp_edges_over_30pct_mean"]
@@ -715,37 +718,6 @@ fn check(
         sim::io::write_all_or_nothing(&[(&p, json.as_bytes())])?;
     }
     Ok(())
-}
-
-/// A drape whose top opening ends more than this far below the DQS warp's has slid down
-/// the body (trousers off the hips, a top off the shoulders) (cm). Jeans hanging from the
-/// hips end 4 to 10 cm below the warp's waistband (docs/garments.md); 15 cm is below the
-/// seat.
-pub const SLID_CM: f64 = 15.0;
-
-/// The garment's top opening: the boundary loop highest on the template (the neckline of a
-/// top, the waistband of trousers).
-fn top_opening(t: &Template) -> Vec<u32> {
-    let mean_y = |l: &Vec<u32>| {
-        l.iter()
-            .map(|&v| t.mesh.vertices[v as usize].y)
-            .sum::<f32>()
-            / l.len().max(1) as f32
-    };
-    sim::mesh::remesh::boundary_loops(&t.mesh)
-        .into_iter()
-        .max_by(|a, b| mean_y(a).total_cmp(&mean_y(b)))
-        .unwrap_or_default()
-}
-
-/// How far the top opening `top` of a drape ends below the DQS warp's (cm; mean over its
-/// vertices of the height difference): the warp carries the opening to where the body
-/// holds it, so a large drop means the garment slid down.
-fn top_drop_cm(top: &[u32], warp: &[glam::Vec3], drape: &[glam::Vec3]) -> f64 {
-    top.iter()
-        .map(|&v| f64::from(warp[v as usize].y - drape[v as usize].y) * 100.0)
-        .sum::<f64>()
-        / top.len().max(1) as f64
 }
 
 /// Sample `k` of the checks and galleries: the body of the default shape range and the pose
@@ -812,7 +784,7 @@ fn gallery(
             &opts,
         )?,
     ];
-    let top = top_opening(&t);
+    let top = t.top_opening();
     println!(
         "row 0: the canonical body, the template on it ({} vertices), the template alone",
         t.len()
@@ -827,7 +799,9 @@ fn gallery(
         let target = model.shape(&shape)?;
         let posed = target.pose(&pose.pose);
         let warp = sized.warp(&reference, &target, &posed);
-        let d = drape_from_reference(&model, &cloth, sized, shape, &pose.pose, &config, true)?;
+        let mut d = drape_from_reference(&model, &cloth, sized, shape, &pose.pose, &config, true)?;
+        d.report
+            .judge_top_drop(sim::garment::top_drop(&top, &warp, &d.positions));
         let r = &d.report;
         println!(
             "row {}: random:{s}, body {:.2} m (gender {:.2}, weight {:.2}), size {size}, pose {}; DQS warp, then the drape: {}, strain p95 {:.1}%, top opening {:.1} cm below the warp's, {:.1} s",
@@ -841,7 +815,7 @@ fn gallery(
                 Some(f) => format!("FAILED ({f})"),
             },
             r.strain.p95 * 100.0,
-            top_drop_cm(&top, &warp, &d.positions),
+            r.top_drop.unwrap_or(0.0) * 100.0,
             r.wall_time
         );
         images.push(eval::render::render(

@@ -198,7 +198,19 @@ pub enum Failure {
         /// Deepest (m).
         max_depth: f32,
     },
+    /// The garment slid down the body: its top opening (a neckline, a waistband) came to
+    /// rest more than [`MAX_TOP_DROP`] below where the DQS warp puts it (judged by callers
+    /// that have the warp, [`DrapeReport::judge_top_drop`]).
+    SlidDown {
+        /// How far below the warp's (m, mean over the opening's vertices).
+        drop: f32,
+    },
 }
+
+/// How far a garment's top opening may come to rest below the DQS warp's before the drape
+/// counts as slid down (m). Jeans hanging from the hips end 4 to 10 cm below the warp's
+/// waistband; 15 cm is below the seat (docs/garments.md, "Sliding").
+pub const MAX_TOP_DROP: f32 = 0.15;
 
 impl std::fmt::Display for Failure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -229,6 +241,11 @@ impl std::fmt::Display for Failure {
                 f,
                 "{count} particles left inside the body (deepest {:.2} mm)",
                 max_depth * 1e3
+            ),
+            Failure::SlidDown { drop } => write!(
+                f,
+                "slid down the body (the top opening came to rest {:.1} cm below the DQS warp's)",
+                drop * 1e2
             ),
         }
     }
@@ -263,7 +280,8 @@ pub struct PenetrationStats {
 /// Everything measured about one drape.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DrapeReport {
-    /// True if the cloth came to rest and no particle is left inside the body.
+    /// True if the cloth came to rest and no particle is left inside the body (and, where
+    /// judged, it did not slide down the body: [`Self::judge_top_drop`]).
     pub converged: bool,
     /// Why not, when not.
     pub failure: Option<Failure>,
@@ -295,6 +313,23 @@ pub struct DrapeReport {
     pub kinetic_energy: f32,
     /// Largest displacement in the last frame (m).
     pub last_displacement: f32,
+    /// How far the garment's top opening came to rest below the DQS warp's (m; None when
+    /// the caller has no warp to compare with, e.g. `drape sim` on an OBJ).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub top_drop: Option<f32>,
+}
+
+impl DrapeReport {
+    /// Records how far the top opening came to rest below the DQS warp's (see
+    /// `garment::top_drop`); beyond [`MAX_TOP_DROP`] a drape that had not failed otherwise
+    /// fails as slid down: it came to rest, but not on the body.
+    pub fn judge_top_drop(&mut self, drop: f32) {
+        self.top_drop = Some(drop);
+        if self.failure.is_none() && !(drop <= MAX_TOP_DROP) {
+            self.failure = Some(Failure::SlidDown { drop });
+            self.converged = false;
+        }
+    }
 }
 
 /// Final positions and the report.
@@ -613,6 +648,7 @@ pub fn drape(
         penetration: after,
         kinetic_energy: last.1,
         last_displacement: last.0,
+        top_drop: None,
     };
     DrapeResult {
         positions: x,

@@ -78,6 +78,21 @@ fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
 }
 
 impl Template {
+    /// The top opening: the boundary loop highest on the template (a top's neckline,
+    /// trousers' waistband); empty for a closed mesh.
+    pub fn top_opening(&self) -> Vec<u32> {
+        let mean_y = |l: &Vec<u32>| {
+            l.iter()
+                .map(|&v| self.mesh.vertices[v as usize].y)
+                .sum::<f32>()
+                / l.len() as f32
+        };
+        crate::mesh::remesh::boundary_loops(&self.mesh)
+            .into_iter()
+            .max_by(|a, b| mean_y(a).total_cmp(&mean_y(b)))
+            .unwrap_or_default()
+    }
+
     /// Shape of the body the template is made for, in its rest pose: the canonical body
     /// unless it is a graded size. Drapes start there and warps reshape from there.
     pub fn reference(&self) -> ShapeParams {
@@ -297,4 +312,15 @@ impl Template {
             &posed.skinning,
         )
     }
+}
+
+/// How far the top opening `top` ([`Template::top_opening`]) of a drape came to rest below
+/// the DQS warp's (m; mean over its vertices of the height difference). The warp carries
+/// the opening to where the body holds it, so a large drop means the garment slid down
+/// (`DrapeReport::judge_top_drop`).
+pub fn top_drop(top: &[u32], warp: &[Vec3], drape: &[Vec3]) -> f32 {
+    top.iter()
+        .map(|&v| warp[v as usize].y - drape[v as usize].y)
+        .sum::<f32>()
+        / top.len().max(1) as f32
 }
