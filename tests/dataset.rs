@@ -92,6 +92,18 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     let (ok, text) = run(drape().args(["data", "info"]).arg(dir));
     assert!(ok, "{text}");
     assert!(text.contains("test pose to nearest train"), "{text}");
+    // Every drape records how far its neckline ended below the warp's: T-shirts hang from
+    // the shoulders, none slid (over 15 cm would have failed it).
+    let line = text
+        .lines()
+        .find(|l| l.contains("top opening below the warp's"))
+        .unwrap_or_else(|| panic!("{text}"));
+    let max: f64 = line
+        .split("max ")
+        .nth(1)
+        .and_then(|r| r.trim_end_matches(" cm").trim().parse().ok())
+        .unwrap_or_else(|| panic!("{line}"));
+    assert!((-15.0..15.0).contains(&max), "{line}");
     let (ok, text) = run(drape().args(["data", "verify"]).arg(dir));
     assert!(
         ok && text.contains("every shard is intact (8 samples)"),

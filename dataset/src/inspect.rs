@@ -67,6 +67,9 @@ pub struct Info {
     pub strain_max: Stats,
     /// Deepest penetration after the push-out (m).
     pub penetration_max_depth: Stats,
+    /// How far the top opening came to rest below the DQS warp's (m), over the converged
+    /// drapes that record it (datasets made before the slide check do not: `None`).
+    pub top_drop: Option<Stats>,
     /// Time per sample, one thread (s).
     pub seconds: Stats,
     /// Each converged test pose's distance to the nearest converged training pose: mean
@@ -127,6 +130,13 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
         strain_p95: stat(&["strain", "p95"]),
         strain_max: stat(&["strain", "max"]),
         penetration_max_depth: stat(&["penetration", "max_depth"]),
+        top_drop: {
+            let v: Vec<f64> = ok
+                .iter()
+                .filter_map(|s| s.report["top_drop"].as_f64())
+                .collect();
+            (!v.is_empty()).then(|| Stats::of(v))
+        },
         seconds: Stats::of(ok.iter().map(|s| s.seconds).collect()),
         test_to_train_pose_deg: Stats::of(nearest),
     })

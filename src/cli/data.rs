@@ -449,6 +449,12 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 1000.0,
                 " mm",
             );
+            match &i.top_drop {
+                Some(d) => st("top opening below the warp's", d, 100.0, " cm"),
+                None => println!(
+                    "  top opening below the warp's: not recorded (made before the slide check)"
+                ),
+            }
             st("time per drape (1 thread)", &i.seconds, 1.0, " s");
             st(
                 "test pose to nearest train",
