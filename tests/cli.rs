@@ -662,7 +662,7 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     assert!(slid["top_drop_cm"].as_f64().unwrap() > 100.0, "{slid}");
     assert_eq!(held["converged"], true, "{held}");
     let d = held["top_drop_cm"].as_f64().unwrap();
-    assert!((0.0..15.0).contains(&d), "{held}");
+    assert!((0.0..25.0).contains(&d), "{held}");
     assert_eq!(r["summary"]["share_slid"], 0.5);
     assert!(String::from_utf8_lossy(&o.stdout).contains("slid down"));
 }

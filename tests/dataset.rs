@@ -93,7 +93,7 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     assert!(ok, "{text}");
     assert!(text.contains("test pose to nearest train"), "{text}");
     // Every drape records how far its neckline ended below the warp's: T-shirts hang from
-    // the shoulders, none slid (over 15 cm would have failed it).
+    // the shoulders, none slid (over 25 cm would have failed it).
     let line = text
         .lines()
         .find(|l| l.contains("top opening below the warp's"))
