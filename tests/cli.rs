@@ -632,9 +632,12 @@ fn a_child_whose_reproduce_parent_is_gone_stops() {
 /// the drape fails as slid down, while the next sample's jeans hang from the hips.
 #[test]
 fn a_drape_that_slides_off_the_body_is_a_failure() {
+    let assets = private_assets();
     let out = tempfile::tempdir().unwrap();
     let report = out.path().join("check.json");
     let o = drape(&[
+        "--assets",
+        assets.path().to_str().unwrap(),
         "garment",
         "check",
         "jeans",

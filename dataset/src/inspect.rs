@@ -68,8 +68,9 @@ pub struct Info {
     /// Deepest penetration after the push-out (m).
     pub penetration_max_depth: Stats,
     /// How far the top opening came to rest below the DQS warp's (m), over the converged
-    /// drapes that record it (datasets made before the slide check do not: `None`).
-    pub top_drop: Option<Stats>,
+    /// drapes that record it (`None` if none does: made before the slide check), and how
+    /// many record it (a dataset resumed across the change has both kinds).
+    pub top_drop: Option<(Stats, usize)>,
     /// Time per sample, one thread (s).
     pub seconds: Stats,
     /// Each converged test pose's distance to the nearest converged training pose: mean
@@ -135,7 +136,8 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
                 .iter()
                 .filter_map(|s| s.report["top_drop"].as_f64())
                 .collect();
-            (!v.is_empty()).then(|| Stats::of(v))
+            let n = v.len();
+            (n > 0).then(|| (Stats::of(v), n))
         },
         seconds: Stats::of(ok.iter().map(|s| s.seconds).collect()),
         test_to_train_pose_deg: Stats::of(nearest),

@@ -199,14 +199,9 @@ fn redrape(
         offset_seed(opts.seed, row.id, k),
     );
     let sim = &redraper.config.sim;
-    Ok(drape::drape(
-        start.cloth,
-        &x0,
-        &motion,
-        sim,
-        true,
-        &mut |_| {},
-    ))
+    let mut d = drape::drape(start.cloth, &x0, &motion, sim, true, &mut |_| {});
+    redraper.judge(&mut d, row);
+    Ok(d)
 }
 
 /// Redrapes the first `opts.samples` samples of `data`'s split once per amplitude.

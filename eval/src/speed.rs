@@ -207,6 +207,8 @@ pub(crate) struct Redraper<'w> {
     /// The garment: base template and sizes.
     pub wardrobe: &'w Wardrobe,
     sizes: std::collections::HashMap<u64, Option<String>>,
+    /// The garment's top opening, to judge whether a redrape slid down as `drape gen` does.
+    top: Vec<u32>,
 }
 
 impl<'w> Redraper<'w> {
@@ -256,7 +258,15 @@ impl<'w> Redraper<'w> {
             config,
             wardrobe,
             sizes,
+            top: wardrobe.base.top_opening(),
         })
+    }
+
+    /// Judges a redrape of `row` as `drape gen` judged the dataset's: slid down the body if
+    /// its top opening came to rest too far below the row's warp M.
+    pub fn judge(&self, d: &mut drape::DrapeResult, row: &Row) {
+        d.report
+            .judge_top_drop(sim::garment::top_drop(&self.top, &row.warped, &d.positions));
     }
 
     /// Where the dataset's drape of `row` started: its size's template and reference body.
@@ -317,7 +327,7 @@ pub fn measure(
         let posed = shaped.pose(&pose);
         let start = redraper.start(row)?;
         let motion = redraper.morph(model, row, &start)?;
-        let full = drape::drape(
+        let mut full = drape::drape(
             start.cloth,
             &start.template.mesh.vertices,
             &motion,
@@ -325,13 +335,14 @@ pub fn measure(
             true,
             &mut |_| {},
         );
+        redraper.judge(&mut full, row);
         let still = StaticBody {
             vertices: posed.vertices.clone(),
             triangles: model.triangles.clone(),
         };
         // PBS-dagger starts from the warp M (the network's input, the base template's
         // warp) with the cloth the dataset draped: the size's rest lengths.
-        let dagger = drape::drape(
+        let mut dagger = drape::drape(
             start.cloth,
             &row.warped,
             &still,
@@ -339,6 +350,7 @@ pub fn measure(
             true,
             &mut |_| {},
         );
+        redraper.judge(&mut dagger, row);
         let t = network_drape(
             &net,
             template,

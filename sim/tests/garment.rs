@@ -49,6 +49,48 @@ fn every_garment_has_its_openings() {
 }
 
 #[test]
+fn the_top_opening_is_the_neckline_or_the_waistband() {
+    for t in built() {
+        let top = t.top_opening();
+        let y = |l: &[u32]| {
+            l.iter()
+                .map(|&v| t.mesh.vertices[v as usize].y)
+                .sum::<f32>()
+                / l.len() as f32
+        };
+        let sorted = |l: &[u32]| {
+            let mut v = l.to_vec();
+            v.sort_unstable();
+            v
+        };
+        // One of the garment's openings, and the highest: the neckline of a top lies above
+        // its sleeves and hem, the jeans' waistband far above their hems.
+        let loops = remesh::boundary_loops(&t.mesh);
+        assert!(loops.iter().any(|l| sorted(l) == sorted(&top)));
+        let others: Vec<f32> = loops
+            .iter()
+            .filter(|l| sorted(l) != sorted(&top))
+            .map(|l| y(l))
+            .collect();
+        let gap = if t.meta.name == "jeans" { 0.5 } else { 0.05 };
+        assert!(
+            others.iter().all(|&o| o + gap < y(&top)),
+            "{}: top opening at {} m, others at {others:?}",
+            t.meta.name,
+            y(&top)
+        );
+        // No drop when the drape is the warp; the garment 30 cm lower drops 0.3 m.
+        let lower: Vec<Vec3> = t.mesh.vertices.iter().map(|p| *p - Vec3::Y * 0.3).collect();
+        assert_eq!(
+            garment::top_drop(&top, &t.mesh.vertices, &t.mesh.vertices),
+            0.0
+        );
+        let d = garment::top_drop(&top, &t.mesh.vertices, &lower);
+        assert!((d - 0.3).abs() < 1e-5, "{d}");
+    }
+}
+
+#[test]
 fn garments_rest_outside_the_canonical_body() {
     let canonical = model().shape(&Default::default()).unwrap();
     let body = BodyCollider::new(&canonical.vertices, &model().triangles, 0.01);

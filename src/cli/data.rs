@@ -449,11 +449,20 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 1000.0,
                 " mm",
             );
+            let converged: usize = i.samples.values().sum();
             match &i.top_drop {
-                Some(d) => st("top opening below the warp's", d, 100.0, " cm"),
-                None => println!(
+                Some((d, n)) => {
+                    st("top opening below the warp's", d, 100.0, " cm");
+                    if *n < converged {
+                        println!(
+                            "    (recorded by {n} of the {converged} converged drapes; the others were made before the slide check)"
+                        );
+                    }
+                }
+                None if converged > 0 => println!(
                     "  top opening below the warp's: not recorded (made before the slide check)"
                 ),
+                None => {}
             }
             st("time per drape (1 thread)", &i.seconds, 1.0, " s");
             st(

@@ -119,7 +119,7 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     )?;
     let bar = learn::run::progress(true, (dc.sim.morph_frames + dc.sim.max_frames) as u64);
     bar.set_message("simulator");
-    let sim_result = drape::drape(
+    let mut sim_result = drape::drape(
         start.cloth,
         &start.template.mesh.vertices,
         &motion,
@@ -129,11 +129,6 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     );
     bar.finish_and_clear();
     let sim_seconds = sim_result.report.wall_time;
-    if let Some(f) = &sim_result.report.failure {
-        eprintln!(
-            "warning: the simulator's drape did not converge ({f}); figures compare against its last state"
-        );
-    }
 
     // The network: DQS warp, inputs, both streams; medians of 3 after a warm-up call.
     let params = learn::data::body_params(&drawn.shape.values(), &drawn.pose.rotations);
@@ -153,6 +148,17 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
         ..
     } = &timed;
     let net_seconds = timed.seconds();
+    // Judged as `drape gen` judges a dataset's drape (slid down the body or not).
+    sim_result.report.judge_top_drop(sim::garment::top_drop(
+        &template.top_opening(),
+        warped,
+        &sim_result.positions,
+    ));
+    if let Some(f) = &sim_result.report.failure {
+        eprintln!(
+            "warning: the simulator's drape failed ({f}); figures compare against its last state"
+        );
+    }
 
     let truth = &sim_result.positions;
     let tris = &template.mesh.triangles;

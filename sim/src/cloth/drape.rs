@@ -314,7 +314,9 @@ pub struct DrapeReport {
     /// Largest displacement in the last frame (m).
     pub last_displacement: f32,
     /// How far the garment's top opening came to rest below the DQS warp's (m; None when
-    /// the caller has no warp to compare with, e.g. `drape sim` on an OBJ).
+    /// the caller did not judge it: `drape sim` does not). `drape gen` compares with the
+    /// base template's warp (the network's M), `garment check` and `gallery` with the
+    /// worn size's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub top_drop: Option<f32>,
 }
@@ -660,6 +662,64 @@ pub fn drape(
 mod tests {
     use super::*;
     use crate::mesh::primitives;
+
+    fn report(failure: Option<Failure>) -> DrapeReport {
+        DrapeReport {
+            converged: failure.is_none(),
+            failure,
+            particles: 0,
+            constraints: [0; 4],
+            colours: 0,
+            morph_frames: 0,
+            settle_frames: 0,
+            substeps: 0,
+            wall_time: 0.0,
+            stage_times: Default::default(),
+            verify_time: 0.0,
+            strain: Default::default(),
+            penetration_before_pushout: Default::default(),
+            penetration: Default::default(),
+            kinetic_energy: 0.0,
+            last_displacement: 0.0,
+            top_drop: None,
+        }
+    }
+
+    #[test]
+    fn a_drape_fails_as_slid_down_beyond_the_top_drop_limit_only() {
+        // Up to the limit (and a neckline risen above the warp's) it stays converged.
+        for drop in [-0.05, 0.0, 0.1, MAX_TOP_DROP] {
+            let mut r = report(None);
+            r.judge_top_drop(drop);
+            assert!(r.converged && r.failure.is_none(), "{drop}");
+            assert_eq!(r.top_drop, Some(drop));
+        }
+        // Beyond it, or unmeasurable, it fails and says by how much.
+        for drop in [MAX_TOP_DROP + 0.01, 1.6, f32::NAN] {
+            let mut r = report(None);
+            r.judge_top_drop(drop);
+            assert!(!r.converged, "{drop}");
+            let text = r.failure.unwrap().to_string();
+            assert!(text.starts_with("slid down the body"), "{text}");
+        }
+        let mut r = report(None);
+        r.judge_top_drop(1.606);
+        assert!(r.failure.unwrap().to_string().contains("160.6 cm below"));
+        // An earlier failure is the one reported.
+        let mut r = report(Some(Failure::NoConvergence {
+            last_displacement: 0.002,
+        }));
+        r.judge_top_drop(1.0);
+        assert!(matches!(r.failure, Some(Failure::NoConvergence { .. })));
+        assert_eq!(r.top_drop, Some(1.0));
+        // It serialises with its reason; an unjudged report has no top_drop.
+        let mut r = report(None);
+        assert!(serde_json::to_value(&r).unwrap().get("top_drop").is_none());
+        r.judge_top_drop(0.5);
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(v["failure"]["reason"], "slid_down");
+        assert!((v["top_drop"].as_f64().unwrap() - 0.5).abs() < 1e-6);
+    }
 
     #[test]
     fn push_out_reuses_searches_and_counts_as_penetration_does() {
