@@ -357,6 +357,37 @@ fn a_graded_size_is_the_garment_made_for_its_reference_body() {
 }
 
 #[test]
+fn grading_to_the_canonical_body_gives_back_the_base_template() {
+    // Grading must not loosen a garment by itself: pushed out to the build's clearance and
+    // relaxed under gravity again, the jeans graded to the canonical body came out with a
+    // 4.4% longer waistband and slid down the body where the base size holds.
+    let jeans = built().iter().find(|t| t.meta.name == "jeans").unwrap();
+    let def = garment::built_in("jeans").unwrap();
+    let same = garment::def::SizeDef {
+        name: "again".into(),
+        shape: Default::default(),
+    };
+    let t = garment::grade(jeans, &def, &same, model()).unwrap();
+    let top = jeans.top_opening();
+    let perimeter = |x: &[Vec3]| -> f32 {
+        (0..top.len())
+            .map(|i| x[top[i] as usize].distance(x[top[(i + 1) % top.len()] as usize]))
+            .sum()
+    };
+    let ratio = perimeter(&t.mesh.vertices) / perimeter(&jeans.mesh.vertices);
+    assert!((ratio - 1.0).abs() < 0.005, "waistband x{ratio}");
+    let moved = t
+        .mesh
+        .vertices
+        .iter()
+        .zip(&jeans.mesh.vertices)
+        .map(|(a, b)| a.distance(*b))
+        .sum::<f32>()
+        / t.len() as f32;
+    assert!(moved < 0.002, "moved {moved} m on average");
+}
+
+#[test]
 fn a_body_wears_the_size_its_measurements_pick() {
     let lib = garment::Library::new(&default_assets_dir());
     let chart = lib.size_chart("tshirt", model()).unwrap().unwrap();
