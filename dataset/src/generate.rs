@@ -119,8 +119,6 @@ struct Job<'a> {
     wardrobe: &'a Wardrobe,
     poser: Poser,
     canonical: sim::body::ShapedBody<'a>,
-    /// The garment's top opening, to judge whether a drape slid down.
-    top: Vec<u32>,
 }
 
 impl<'a> Job<'a> {
@@ -137,7 +135,6 @@ impl<'a> Job<'a> {
             wardrobe,
             poser: Poser::new(config, model, library)?,
             canonical: model.shape(&ShapeParams::default())?,
-            top: wardrobe.base.top_opening(),
         })
     }
 
@@ -170,8 +167,7 @@ impl<'a> Job<'a> {
             &mut |_| {},
         );
         // A drape that came to rest off the body (trousers at the feet) is a failure too.
-        d.report
-            .judge_top_drop(sim::garment::top_drop(&self.top, &warped, &d.positions));
+        d.judge_slide(self.wardrobe.top_opening(), &warped);
         let ok = d.report.converged;
         let record = SampleRecord {
             plan,

@@ -46,6 +46,8 @@ pub struct Wardrobe {
     /// The base template (the network's `M0`).
     pub base: Template,
     base_cloth: ClothModel,
+    /// The base template's top opening (`Template::top_opening`; every size shares it).
+    top: Vec<u32>,
     sizes: Option<(SizeChart, Vec<Size>)>,
 }
 
@@ -90,10 +92,17 @@ impl Wardrobe {
             None
         };
         Ok(Self {
+            top: base.top_opening(),
             base,
             base_cloth,
             sizes,
         })
+    }
+
+    /// The garment's top opening, to judge whether a drape slid down the body
+    /// (`DrapeResult::judge_slide`).
+    pub fn top_opening(&self) -> &[u32] {
+        &self.top
     }
 
     /// Each size's sha256 of its template's vertex positions (f32 little-endian; empty

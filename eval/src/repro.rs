@@ -652,14 +652,32 @@ fn paper_for(tables: &[PaperTable], t: &PaperTable, c: &PaperCell) -> f64 {
     }
 }
 
-fn provenance(r: &Results, key: &str) -> (Option<String>, Option<String>, Option<String>) {
-    let p = r.evals.get(key).map(|e| &e["provenance"]);
-    let s = |f: &str| p.and_then(|p| p[f].as_str()).map(str::to_string);
-    (
-        s("run_config_sha256"),
-        s("manifest_sha256"),
-        s("git_revision"),
-    )
+impl Number {
+    /// Our number `ours` at (row, column, metric) of `table`, from run `run`, with that
+    /// run's provenance from its evaluation in `r`.
+    fn new(
+        r: &Results,
+        run: &str,
+        table: u32,
+        (row, column, metric): (&str, &str, &str),
+        ours: Option<f64>,
+        paper: Option<f64>,
+    ) -> Self {
+        let p = r.evals.get(run).map(|e| &e["provenance"]);
+        let s = |f: &str| p.and_then(|p| p[f].as_str()).map(str::to_string);
+        Self {
+            table,
+            row: row.into(),
+            column: column.into(),
+            metric: metric.into(),
+            ours,
+            paper,
+            run: run.into(),
+            run_config_sha256: s("run_config_sha256"),
+            manifest_sha256: s("manifest_sha256"),
+            git_revision: s("git_revision"),
+        }
+    }
 }
 
 /// The machine: CPU model, cores, memory (from /proc where there is one).
@@ -889,19 +907,14 @@ pub fn write_report(
                             c.as_printed.clone()
                         }
                     ));
-                    let (cfg, man, git) = provenance(&r, &key);
-                    numbers.push(Number {
-                        table: t.number,
-                        row: c.row.clone(),
-                        column: c.column.clone(),
-                        metric: c.metric.clone(),
+                    numbers.push(Number::new(
+                        &r,
+                        &key,
+                        t.number,
+                        (&c.row, &c.column, &c.metric),
                         ours,
-                        paper: Some(paper),
-                        run: key,
-                        run_config_sha256: cfg,
-                        manifest_sha256: man,
-                        git_revision: git,
-                    });
+                        Some(paper),
+                    ));
                 }
                 write!(line, " {} ({}) |", ours_s.join(" / "), paper_s.join(" / ")).unwrap();
             }
@@ -945,7 +958,6 @@ pub fn write_report(
                 fmt(ok(s.flops / 1e9), 2),
             )
             .unwrap();
-            let (cfg, man, git) = provenance(&r, key);
             for (metric, v) in [
                 ("PBS (s)", ok(pbs)),
                 ("PBS-dagger (s)", ok(dagger)),
@@ -955,18 +967,7 @@ pub fn write_report(
                 ("network per drape at the batch (s)", ok(many)),
                 ("speed-up over PBS at the batch", ok(pbs / many)),
             ] {
-                numbers.push(Number {
-                    table: 0,
-                    row: key.clone(),
-                    column: "speed-up".into(),
-                    metric: metric.into(),
-                    ours: v,
-                    paper: None,
-                    run: key.clone(),
-                    run_config_sha256: cfg.clone(),
-                    manifest_sha256: man.clone(),
-                    git_revision: git.clone(),
-                });
+                numbers.push(Number::new(&r, key, 0, (key, "speed-up", metric), v, None));
             }
         }
         if let Some((x, key)) = best {
@@ -1020,19 +1021,8 @@ pub fn write_report(
                 let (d, a) = (f(key, m, "edist_cm"), f(key, m, "enorm_deg"));
                 write!(line, " {} / {} |", fmt(d, 2), fmt(a, 2)).unwrap();
                 for (metric, v) in [("Edist", d), ("Enorm", a)] {
-                    let (cfg, man, git) = provenance(&r, key);
-                    numbers.push(Number {
-                        table: 0,
-                        row: name.into(),
-                        column: format!("baselines {column}"),
-                        metric: metric.into(),
-                        ours: v,
-                        paper: None,
-                        run: key.clone(),
-                        run_config_sha256: cfg,
-                        manifest_sha256: man,
-                        git_revision: git,
-                    });
+                    let column = format!("baselines {column}");
+                    numbers.push(Number::new(&r, key, 0, (name, &column, metric), v, None));
                 }
             }
             writeln!(w, "{line}").unwrap();
@@ -1069,19 +1059,14 @@ pub fn write_report(
             );
             writeln!(w, "| {label} | `{key}` | {} | {} |", fmt(d, 2), fmt(a, 2)).unwrap();
             for (metric, v) in [("Edist", d), ("Enorm", a)] {
-                let (cfg, man, git) = provenance(&r, key);
-                numbers.push(Number {
-                    table: 0,
-                    row: label.into(),
-                    column: "loss ablation".into(),
-                    metric: metric.into(),
-                    ours: v,
-                    paper: None,
-                    run: key.into(),
-                    run_config_sha256: cfg,
-                    manifest_sha256: man,
-                    git_revision: git,
-                });
+                numbers.push(Number::new(
+                    &r,
+                    key,
+                    0,
+                    (label, "loss ablation", metric),
+                    v,
+                    None,
+                ));
             }
         }
         writeln!(w).unwrap();

@@ -207,8 +207,6 @@ pub(crate) struct Redraper<'w> {
     /// The garment: base template and sizes.
     pub wardrobe: &'w Wardrobe,
     sizes: std::collections::HashMap<u64, Option<String>>,
-    /// The garment's top opening, to judge whether a redrape slid down as `drape gen` does.
-    top: Vec<u32>,
 }
 
 impl<'w> Redraper<'w> {
@@ -258,15 +256,13 @@ impl<'w> Redraper<'w> {
             config,
             wardrobe,
             sizes,
-            top: wardrobe.base.top_opening(),
         })
     }
 
     /// Judges a redrape of `row` as `drape gen` judged the dataset's: slid down the body if
     /// its top opening came to rest too far below the row's warp M.
     pub fn judge(&self, d: &mut drape::DrapeResult, row: &Row) {
-        d.report
-            .judge_top_drop(sim::garment::top_drop(&self.top, &row.warped, &d.positions));
+        d.judge_slide(self.wardrobe.top_opening(), &row.warped);
     }
 
     /// Where the dataset's drape of `row` started: its size's template and reference body.

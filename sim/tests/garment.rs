@@ -82,10 +82,10 @@ fn the_top_opening_is_the_neckline_or_the_waistband() {
         // No drop when the drape is the warp; the garment 30 cm lower drops 0.3 m.
         let lower: Vec<Vec3> = t.mesh.vertices.iter().map(|p| *p - Vec3::Y * 0.3).collect();
         assert_eq!(
-            garment::top_drop(&top, &t.mesh.vertices, &t.mesh.vertices),
+            sim::cloth::drape::top_drop(&top, &t.mesh.vertices, &t.mesh.vertices),
             0.0
         );
-        let d = garment::top_drop(&top, &t.mesh.vertices, &lower);
+        let d = sim::cloth::drape::top_drop(&top, &t.mesh.vertices, &lower);
         assert!((d - 0.3).abs() < 1e-5, "{d}");
     }
 }

@@ -583,8 +583,7 @@ fn check(
                 }));
             }
             let mut d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
-            d.report
-                .judge_top_drop(sim::garment::top_drop(&top, &warp, &d.positions));
+            d.judge_slide(&top, &warp);
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
@@ -807,8 +806,7 @@ fn gallery(
         let posed = target.pose(&pose.pose);
         let warp = sized.warp(&reference, &target, &posed);
         let mut d = drape_from_reference(&model, &cloth, sized, shape, &pose.pose, &config, true)?;
-        d.report
-            .judge_top_drop(sim::garment::top_drop(&top, &warp, &d.positions));
+        d.judge_slide(&top, &warp);
         let r = &d.report;
         println!(
             "row {}: random:{s}, body {:.2} m (gender {:.2}, weight {:.2}), size {size}, pose {}; DQS warp, then the drape: {}, strain p95 {:.1}%, top opening {:.1} cm below the warp's, {:.1} s",

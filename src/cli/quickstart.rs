@@ -149,11 +149,7 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     } = &timed;
     let net_seconds = timed.seconds();
     // Judged as `drape gen` judges a dataset's drape (slid down the body or not).
-    sim_result.report.judge_top_drop(sim::garment::top_drop(
-        &template.top_opening(),
-        warped,
-        &sim_result.positions,
-    ));
+    sim_result.judge_slide(wardrobe.top_opening(), warped);
     if let Some(f) = &sim_result.report.failure {
         eprintln!(
             "warning: the simulator's drape failed ({f}); figures compare against its last state"

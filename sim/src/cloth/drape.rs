@@ -323,7 +323,7 @@ pub struct DrapeReport {
 
 impl DrapeReport {
     /// Records how far the top opening came to rest below the DQS warp's (see
-    /// `garment::top_drop`); beyond [`MAX_TOP_DROP`] a drape that had not failed otherwise
+    /// [`top_drop`]); beyond [`MAX_TOP_DROP`] a drape that had not failed otherwise
     /// fails as slid down: it came to rest, but not on the body.
     pub fn judge_top_drop(&mut self, drop: f32) {
         self.top_drop = Some(drop);
@@ -334,6 +334,16 @@ impl DrapeReport {
     }
 }
 
+/// How far the top opening `top` (`Template::top_opening`) of a drape came to rest below
+/// the DQS warp's (m; mean over its vertices of the height difference). The warp carries
+/// the opening to where the body holds it, so a large drop means the garment slid down.
+pub fn top_drop(top: &[u32], warp: &[Vec3], drape: &[Vec3]) -> f32 {
+    top.iter()
+        .map(|&v| warp[v as usize].y - drape[v as usize].y)
+        .sum::<f32>()
+        / top.len().max(1) as f32
+}
+
 /// Final positions and the report.
 #[derive(Debug, Clone)]
 pub struct DrapeResult {
@@ -341,6 +351,16 @@ pub struct DrapeResult {
     pub positions: Vec<Vec3>,
     /// Quality and timing.
     pub report: DrapeReport,
+}
+
+impl DrapeResult {
+    /// Judges whether the garment slid down the body: its top opening `top` against the
+    /// DQS warp `warp` of the same body and pose ([`top_drop`],
+    /// [`DrapeReport::judge_top_drop`]).
+    pub fn judge_slide(&mut self, top: &[u32], warp: &[Vec3]) {
+        self.report
+            .judge_top_drop(top_drop(top, warp, &self.positions));
+    }
 }
 
 /// What the progress callback sees after each frame.

@@ -27,7 +27,7 @@ use crate::cloth::collision::BodyCollider;
 use crate::cloth::{SimConfig, SimError};
 use crate::mesh::{MeshError, TriMesh, remesh};
 pub use def::GarmentDef;
-pub use template::{Template, top_drop};
+pub use template::Template;
 
 /// The garments' source meshes, relative to the assets folder (written by `drape body import`).
 pub const HELPERS_FILE: &str = "garments/source/makehuman-helpers.obj";

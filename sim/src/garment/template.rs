@@ -313,14 +313,3 @@ impl Template {
         )
     }
 }
-
-/// How far the top opening `top` ([`Template::top_opening`]) of a drape came to rest below
-/// the DQS warp's (m; mean over its vertices of the height difference). The warp carries
-/// the opening to where the body holds it, so a large drop means the garment slid down
-/// (`DrapeReport::judge_top_drop`).
-pub fn top_drop(top: &[u32], warp: &[Vec3], drape: &[Vec3]) -> f32 {
-    top.iter()
-        .map(|&v| warp[v as usize].y - drape[v as usize].y)
-        .sum::<f32>()
-        / top.len().max(1) as f32
-}
