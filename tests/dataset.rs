@@ -89,9 +89,12 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
             .iter()
             .all(|b| !bodies(Split::Train).contains(b))
     );
+    // The T-shirt has no friction of its own: it drapes with the config's.
+    assert_eq!(m.friction, Some(c.sim.friction));
     let (ok, text) = run(drape().args(["data", "info"]).arg(dir));
     assert!(ok, "{text}");
     assert!(text.contains("test pose to nearest train"), "{text}");
+    assert!(text.contains("friction garment-body: 0.3"), "{text}");
     // Every drape records how far its neckline ended below the warp's: T-shirts hang from
     // the shoulders, none slid (over 25 cm would have failed it).
     let line = text
@@ -227,6 +230,37 @@ fn tampered_and_truncated_shards_are_named() {
     let ds = Dataset::open(t.path()).unwrap();
     assert!(ds.samples(Split::Train).any(|s| s.is_err()));
     assert!(ds.samples(Split::Val).all(|s| s.is_ok()));
+}
+
+#[test]
+fn drapes_of_another_template_are_not_resumed() {
+    // A folder whose drapes were made from a template that differs from the one built now
+    // (its definition or the build code changed) is refused, not mixed.
+    let (_, dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    let copy = t.path().join("copy");
+    let ok = Command::new("cp")
+        .arg("-r")
+        .arg(dir)
+        .arg(&copy)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let st = copy.join("static.safetensors");
+    let mut bytes = std::fs::read(&st).unwrap();
+    let k = bytes.len() - 8;
+    bytes[k] ^= 0x01;
+    std::fs::write(&st, &bytes).unwrap();
+    let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&copy));
+    assert!(
+        !ok && text.contains("holds drapes of another tshirt template"),
+        "{text}"
+    );
+    assert_eq!(
+        std::fs::read(&st).unwrap(),
+        bytes,
+        "the folder was left as it was"
+    );
 }
 
 #[test]
@@ -597,15 +631,36 @@ fn bodies_wear_the_size_their_measurements_pick() {
         !ok && text.contains("differ") && text.contains(name.as_str()),
         "{text}"
     );
-    // Jeans are not graded: refused before any work.
-    let jeans = t.path().join("jeans.toml");
+    // A garment that is not graded (an imported one) is refused before any work.
+    let assets = common::private_assets();
+    let obj = t.path().join("mine.obj");
+    let (ok, text) = run(drape()
+        .arg("--assets")
+        .arg(assets.path())
+        .args(["garment", "build", "tshirt", "--resolution", "1000", "-o"])
+        .arg(&obj));
+    assert!(ok, "{text}");
+    let (ok, text) = run(drape()
+        .arg("--assets")
+        .arg(assets.path())
+        .args(["garment", "import"])
+        .arg(&obj)
+        .args(["--name", "mine"]));
+    assert!(ok, "{text}");
+    let mine = t.path().join("mine.toml");
     std::fs::write(
-        &jeans,
-        sized_text.replace("garment = \"tshirt\"", "garment = \"jeans\""),
+        &mine,
+        sized_text.replace("garment = \"tshirt\"", "garment = \"mine\""),
     )
     .unwrap();
     let none = t.path().join("none");
-    let (ok, text) = run(drape().arg("gen").arg(&jeans).arg("-o").arg(&none));
+    let (ok, text) = run(drape()
+        .arg("--assets")
+        .arg(assets.path())
+        .arg("gen")
+        .arg(&mine)
+        .arg("-o")
+        .arg(&none));
     assert!(!ok && text.contains("not graded"), "{text}");
     assert!(!none.exists());
 }

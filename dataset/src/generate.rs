@@ -309,6 +309,13 @@ fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, Da
     Ok(record)
 }
 
+/// Whether `dir` holds finished drapes: partial drapes or shard records.
+fn holds_drapes(dir: &Path) -> bool {
+    ["partial", "records"].iter().any(|sub| {
+        std::fs::read_dir(dir.join(sub)).is_ok_and(|mut entries| entries.next().is_some())
+    })
+}
+
 /// Runs (or resumes) the generation of `config` into `dir`.
 pub fn generate(
     config: &DatasetConfig,
@@ -331,18 +338,23 @@ pub fn generate(
         let d = dir.join(sub);
         std::fs::create_dir_all(&d).map_err(|e| DatasetError::Io { path: d, source: e })?;
     }
-    // A folder holds one dataset: refuse to mix configs.
+    let (model, library, template) = load_inputs(config, assets, log)?;
+    // A folder holds one dataset: refuse to mix configs, or a garment's own friction
+    // (its definition's `[material]`, recorded only for a garment that has one).
     let hash = config.hash();
     let stamp = dir.join("config.json");
-    let resolved = serde_json::to_vec_pretty(&serde_json::json!({
+    let mut stamped = serde_json::json!({
         "config_sha256": hash,
         "config": config.resolved_json(),
-    }))
-    .expect("json");
+    });
+    if let Some(mu) = template.meta.friction {
+        stamped["garment_friction"] = serde_json::json!(mu);
+    }
+    let resolved = serde_json::to_vec_pretty(&stamped).expect("json");
     match std::fs::read(&stamp) {
         Ok(old) if old != resolved => {
             return Err(DatasetError::Invalid(format!(
-                "{} holds a dataset of another config ({}); use a new folder",
+                "{} holds a dataset of another config or garment material ({}); use a new folder",
                 dir.display(),
                 stamp.display()
             )));
@@ -350,8 +362,6 @@ pub fn generate(
         Ok(_) => {}
         Err(_) => write_atomic(&stamp, &resolved)?,
     }
-
-    let (model, library, template) = load_inputs(config, assets, log)?;
     let wardrobe = Wardrobe::new(template, config, &model, assets, log)?;
     let template = &wardrobe.base;
     let job = Job::new(config, &model, &wardrobe, library)?;
@@ -363,6 +373,16 @@ pub fn generate(
     let st = Static::new(&template.mesh, &model, &job.canonical.vertices);
     let static_bytes = st.encode();
     let static_path = dir.join(STATIC_FILE);
+    if let Ok(old) = std::fs::read(&static_path) {
+        if old != static_bytes && holds_drapes(dir) {
+            return Err(DatasetError::Invalid(format!(
+                "{} holds drapes of another {} template ({} differs from the one built now: the definition or the build code changed); use a new folder",
+                dir.display(),
+                config.garment,
+                static_path.display()
+            )));
+        }
+    }
     if std::fs::read(&static_path).ok().as_deref() != Some(&static_bytes[..]) {
         write_atomic(&static_path, &static_bytes)?;
     }
@@ -446,6 +466,7 @@ pub fn generate(
         mine.iter().map(|s| records[&s.file].clone()).collect(),
     );
     manifest.size_templates = wardrobe.size_fingerprints();
+    manifest.friction = Some(wardrobe.friction());
     let manifest_path = dir.join(manifest_name(opts));
     write_atomic(
         &manifest_path,

@@ -215,6 +215,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest, DatasetError> {
         if m.config_sha256 != first.config_sha256
             || m.static_sha256 != first.static_sha256
             || m.size_templates != first.size_templates
+            || m.friction != first.friction
         {
             return Err(DatasetError::Invalid(format!(
                 "part {i} in {} was made from another config or template",

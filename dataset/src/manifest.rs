@@ -84,6 +84,11 @@ pub struct Manifest {
     /// little-endian), so a redrape can check it grades the same sizes (absent otherwise).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub size_templates: BTreeMap<String, String>,
+    /// Friction between the garment and the body the drapes ran with: the garment's own
+    /// (its definition's `[material]`) or the simulator config's (absent in manifests
+    /// written before it was recorded: the config's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction: Option<f32>,
     /// Shards, in plan order.
     pub shards: Vec<ShardRecord>,
 }
@@ -143,6 +148,7 @@ impl Manifest {
             parts: opts.parts,
             static_sha256,
             size_templates: BTreeMap::new(),
+            friction: None,
             shards,
         }
     }

@@ -64,7 +64,7 @@ impl Wardrobe {
         built: &mut dyn FnMut(&str),
     ) -> Result<Self, DatasetError> {
         let (garment, sim) = (&config.garment, &config.sim);
-        let base_cloth = ClothModel::new(&base.mesh, sim, &[])?;
+        let base_cloth = base.cloth(sim)?;
         let sizes = if config.sizes {
             let lib = Library::new(assets);
             let Some(chart) = lib.size_chart(garment, model)? else {
@@ -80,7 +80,7 @@ impl Wardrobe {
                         "size {name} of {garment} does not share the base template's triangles"
                     )));
                 }
-                let cloth = ClothModel::new(&template.mesh, sim, &[])?;
+                let cloth = template.cloth(sim)?;
                 v.push(Size {
                     name: name.clone(),
                     template,
@@ -103,6 +103,12 @@ impl Wardrobe {
     /// (`DrapeResult::judge_slide`).
     pub fn top_opening(&self) -> &[u32] {
         &self.top
+    }
+
+    /// Friction between the garment and the body its drapes run with (every size shares
+    /// the base template's material).
+    pub fn friction(&self) -> f32 {
+        self.base_cloth.friction
     }
 
     /// Each size's sha256 of its template's vertex positions (f32 little-endian; empty

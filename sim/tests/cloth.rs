@@ -295,6 +295,12 @@ fn tube_around_a_fast_cylinder_never_tunnels() {
 /// A 20 x 20 cm patch on a plane tilted by `degrees` about z, with friction `mu`;
 /// returns how far it slid in 1.5 s.
 fn slide(degrees: f32, mu: f32) -> f32 {
+    slide_cloth(degrees, mu, None)
+}
+
+/// [`slide`] with the config's friction `mu`, and the cloth's own (`cloth_mu`, as a
+/// garment's material gives it) in its place if given.
+fn slide_cloth(degrees: f32, mu: f32, cloth_mu: Option<f32>) -> f32 {
     let config = SimConfig {
         friction: mu,
         damping: 0.0,
@@ -311,12 +317,15 @@ fn slide(degrees: f32, mu: f32) -> f32 {
         10,
     );
     let start: Vec<Vec3> = patch.vertices.iter().map(|v| rot * *v).collect();
-    let model = ClothModel::new(
+    let mut model = ClothModel::new(
         &TriMesh::new(start.clone(), patch.triangles.clone()),
         &config,
         &[],
     )
     .unwrap();
+    if let Some(m) = cloth_mu {
+        model.friction = m;
+    }
     let body = BodyCollider::new(&slab_v, &slab.triangles, config.margin);
     let mut solver = Solver::new(&model, &config, start.clone());
     for _ in 0..90 {
@@ -336,6 +345,21 @@ fn friction_decides_between_sliding_and_sticking() {
     assert!(
         (slid - 2.74).abs() < 0.15 * 2.74,
         "with mu = 0.1 the patch slid {slid} m"
+    );
+}
+
+#[test]
+fn the_cloths_own_friction_wins_over_the_configs() {
+    // A garment's material sets its cloth's friction; the config's no longer decides.
+    let stuck = slide_cloth(20.0, 0.1, Some(0.6));
+    let slid = slide_cloth(20.0, 0.6, Some(0.1));
+    assert!(
+        stuck < 0.005,
+        "with the cloth's mu = 0.6 the patch moved {stuck} m"
+    );
+    assert!(
+        (slid - 2.74).abs() < 0.15 * 2.74,
+        "with the cloth's mu = 0.1 the patch slid {slid} m"
     );
 }
 

@@ -225,6 +225,12 @@ fn templates_round_trip_through_their_file() {
         (&t.meta.name, &t.meta.key)
     );
     assert_eq!(back.meta.build["vertices"], t.meta.build["vertices"]);
+    // The jeans' own friction survives the file too.
+    let jeans = built().iter().find(|t| t.meta.name == "jeans").unwrap();
+    let path_jeans = dir.path().join("jeans.safetensors");
+    std::fs::write(&path_jeans, jeans.encode()).unwrap();
+    let back = Template::load(&path_jeans, model().triangles.len(), model().skeleton.len());
+    assert_eq!(back.unwrap().meta.friction, Some(0.8));
     // A truncated file is refused with a reason.
     std::fs::write(&path, &t.encode()[..100]).unwrap();
     let err = Template::load(&path, model().triangles.len(), model().skeleton.len()).unwrap_err();
@@ -451,5 +457,37 @@ fn bad_gradings_are_rejected() {
         };
         let e = garment::GarmentDef::from_toml(&text, "t.toml").unwrap_err();
         assert!(e.contains(want), "{extra}: {e}");
+    }
+}
+
+#[test]
+fn bad_materials_are_rejected() {
+    let base = BUILT_IN[0].1;
+    for (extra, want) in [
+        ("[material]\nfriction = -0.1\n", "from 0 to 2"),
+        ("[material]\nfriction = nan\n", "from 0 to 2"),
+        ("[material]\nfriction = 3.0\n", "from 0 to 2"),
+        ("[material]\nstiffness = 1.0\n", "unknown field"),
+    ] {
+        let e = garment::GarmentDef::from_toml(&format!("{base}\n{extra}"), "t.toml").unwrap_err();
+        assert!(e.contains(want), "{extra}: {e}");
+    }
+    let ok = garment::GarmentDef::from_toml(&format!("{base}\n[material]\nfriction = 0.8\n"), "t")
+        .unwrap();
+    assert_eq!(ok.friction(), Some(0.8));
+}
+
+#[test]
+fn the_jeans_bring_their_own_friction_to_the_simulator() {
+    let config = sim::cloth::SimConfig::default();
+    for t in built() {
+        let mu = t.cloth(&config).unwrap().friction;
+        if t.meta.name == "jeans" {
+            assert_eq!(t.meta.friction, Some(0.8));
+            assert_eq!(mu, 0.8, "the jeans' cloth");
+        } else {
+            assert_eq!(t.meta.friction, None, "{}", t.meta.name);
+            assert_eq!(mu, config.friction, "{}'s cloth", t.meta.name);
+        }
     }
 }

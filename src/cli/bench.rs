@@ -2,8 +2,8 @@
 
 use clap::{Args, Subcommand};
 use sim::body::ShapeParams;
+use sim::cloth::SimConfig;
 use sim::cloth::drape::{self, BodyMorph, DrapeReport};
-use sim::cloth::{ClothModel, SimConfig};
 
 use super::Context;
 use super::body::load;
@@ -414,8 +414,7 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     };
     let (model, library) = load(ctx)?;
     let body = model.shape(&ShapeParams::default())?;
-    let tube = super::simulate::garment(&garment, resolution, ctx, &body)?;
-    let cloth = ClothModel::new(&tube, &config, &[])?;
+    let (tube, cloth) = super::simulate::garment(&garment, resolution, ctx, &body, &config)?;
     let prior = dataset::sampling::PosePrior::new(library);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let [stretch, shear, bend] = cloth.kind_counts();

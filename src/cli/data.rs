@@ -433,6 +433,12 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 println!("  failure: {r}: {k}");
             }
             println!("  on disk: {}", mb(i.bytes));
+            match m.friction {
+                Some(mu) => println!("  friction garment-body: {mu}"),
+                None => println!(
+                    "  friction garment-body: the config's (not recorded: made before garments had their own)"
+                ),
+            }
             let st = |name: &str, s: &inspect::Stats, scale: f64, unit: &str| {
                 println!(
                     "  {name:<28} mean {:.2}{unit}, p95 {:.2}{unit}, max {:.2}{unit}",

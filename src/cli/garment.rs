@@ -48,6 +48,10 @@ enum GarmentCommand {
         /// Name to use it by (`--garment NAME`).
         #[arg(long)]
         name: String,
+        /// The fabric's friction against the body, from 0 to 2 (default: the simulator
+        /// config's, 0.3); a built-in garment sets it in its definition's `[material]`.
+        #[arg(long, value_name = "MU")]
+        friction: Option<f32>,
     },
     /// List the garments: built-in ones (and whether they are cached) and imported ones.
     List,
@@ -359,9 +363,13 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             cell_height,
             output,
         } => gallery(ctx, &name, resolution, samples, seed, cell_height, &output),
-        GarmentCommand::Import { obj, name } => {
+        GarmentCommand::Import {
+            obj,
+            name,
+            friction,
+        } => {
             let (model, _) = load(ctx)?;
-            let (t, path) = lib.import(&obj, &name, &model)?;
+            let (t, path) = lib.import(&obj, &name, friction, &model)?;
             println!(
                 "imported {} as {name}: {} vertices, {} triangles -> {}",
                 obj.display(),
@@ -475,7 +483,7 @@ fn check(
 ) -> anyhow::Result<()> {
     use dataset::sampling::{PosePrior, ShapeRanges};
     use rayon::prelude::*;
-    use sim::cloth::{ClothModel, SimConfig};
+    use sim::cloth::SimConfig;
 
     let config = match &config {
         Some(p) => SimConfig::load(p)?,
@@ -518,7 +526,7 @@ fn check(
     for size in &sizes {
         if !fitted.contains_key(size.as_str()) {
             let t = wardrobe.loaded(size);
-            let cloth = ClothModel::new(&t.mesh, &config, &[])?;
+            let cloth = t.cloth(&config)?;
             fitted.insert(size.as_str(), (t, cloth, model.shape(&t.reference())?));
         }
     }
@@ -534,8 +542,9 @@ fn check(
         )?),
         _ => None,
     };
+    let friction = t.meta.friction.unwrap_or(config.friction);
     println!(
-        "{name}: {} vertices, {} drapes ({}), {}, {}, both cores across drapes",
+        "{name}: {} vertices, {} drapes ({}), {}, {}, friction {friction}{}, both cores across drapes",
         t.len(),
         cases.len(),
         if corners {
@@ -551,7 +560,12 @@ fn check(
         } else {
             "one size".to_string()
         },
-        config.stepping()
+        config.stepping(),
+        if t.meta.friction.is_some() {
+            " (the garment's own)"
+        } else {
+            ""
+        }
     );
     let bar = indicatif::ProgressBar::new(cases.len() as u64).with_style(
         indicatif::ProgressStyle::with_template(
@@ -682,6 +696,8 @@ fn check(
         "vertices": t.len(),
         "drapes": rows.len(),
         "substeps": config.substeps,
+        // As written (0.3, not the f32's 0.30000001192092896).
+        "friction": friction.to_string().parse::<f64>().unwrap_or(f64::NAN),
         "converged_share": converged as f64 / n,
         "deepest_mm": f("deepest_mm").into_iter().fold(0.0, f64::max),
         "strain_p95_mean": p95.iter().sum::<f64>() / n,
@@ -749,7 +765,7 @@ fn gallery(
     output: &Path,
 ) -> anyhow::Result<()> {
     use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer, RenderOptions};
-    use sim::cloth::{ClothModel, SimConfig};
+    use sim::cloth::SimConfig;
 
     let (model, library) = load(ctx)?;
     let mut wardrobe = Wardrobe::new(ctx, name, resolution, &model, false)?;
@@ -800,7 +816,7 @@ fn gallery(
         let (shape, pose) = sample(&prior, s);
         let size = wardrobe.size_for(&shape)?;
         let sized = wardrobe.get(&size)?;
-        let cloth = ClothModel::new(&sized.mesh, &config, &[])?;
+        let cloth = sized.cloth(&config)?;
         let reference = model.shape(&sized.reference())?;
         let target = model.shape(&shape)?;
         let posed = target.pose(&pose.pose);

@@ -56,25 +56,32 @@ pub struct SimArgs {
     threads: Option<usize>,
 }
 
-/// The garment template: a garment name, an OBJ file or the test tube.
+/// The garment mesh and its cloth (a garment brings its own friction): a garment name, an
+/// OBJ file or the test tube.
 pub fn garment(
     spec: &str,
     resolution: Option<usize>,
     ctx: &Context,
     canonical: &sim::body::ShapedBody<'_>,
-) -> anyhow::Result<TriMesh> {
+    config: &SimConfig,
+) -> anyhow::Result<(TriMesh, ClothModel)> {
     if !spec.ends_with(".obj") && spec != "tube" {
-        return Ok(super::garment::template(ctx, spec, resolution, canonical.model)?.mesh);
+        let t = super::garment::template(ctx, spec, resolution, canonical.model)?;
+        let cloth = t.cloth(config)?;
+        return Ok((t.mesh, cloth));
     }
-    if spec == "tube" {
+    let mesh = if spec == "tube" {
         // Numbered as an OBJ of it reads back, so that its drapes can warm-start it.
-        return Ok(sim::cloth::scene::torso_tube(canonical, 128, 78, 0.015).in_first_use_order());
-    }
-    let path = Path::new(spec);
-    if !path.exists() {
-        bail!("garment {spec:?}: no such file (give a garment name, an OBJ path, or `tube`)");
-    }
-    Ok(TriMesh::read_obj(path)?)
+        sim::cloth::scene::torso_tube(canonical, 128, 78, 0.015).in_first_use_order()
+    } else {
+        let path = Path::new(spec);
+        if !path.exists() {
+            bail!("garment {spec:?}: no such file (give a garment name, an OBJ path, or `tube`)");
+        }
+        TriMesh::read_obj(path)?
+    };
+    let cloth = ClothModel::new(&mesh, config, &[])?;
+    Ok((mesh, cloth))
 }
 
 /// Runs `drape sim`.
@@ -88,8 +95,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
     let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
-    let mesh = garment(&args.garment, args.resolution, ctx, &canonical)?;
-    let cloth = ClothModel::new(&mesh, &config, &[])?;
+    let (mesh, cloth) = garment(&args.garment, args.resolution, ctx, &canonical, &config)?;
     let morph;
     let still;
     let (start, motion): (Vec<_>, &(dyn drape::BodyMotion + Sync)) = match &args.warm_start {

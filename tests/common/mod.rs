@@ -17,3 +17,20 @@ pub fn run(cmd: &mut Command) -> (bool, String) {
     );
     (out.status.success(), text)
 }
+
+/// A private assets folder (the body model and the helper meshes, nothing built): what a
+/// test builds, grades or imports there stays out of the source tree's `assets/`.
+#[allow(dead_code)]
+pub fn private_assets() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets");
+    for rel in [
+        "body/body.safetensors.gz",
+        "garments/source/makehuman-helpers.obj",
+    ] {
+        let to = dir.path().join(rel);
+        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+        std::fs::copy(src.join(rel), &to).unwrap();
+    }
+    dir
+}

@@ -70,7 +70,8 @@ pub struct SimConfig {
     pub thickness: f32,
     /// Extra contact search radius beyond thickness and a particle's travel (m, default 0.01).
     pub margin: f32,
-    /// Coulomb friction coefficient between cloth and body (default 0.3).
+    /// Coulomb friction coefficient between cloth and body (default 0.3); a garment with its
+    /// own (`[material] friction` in its definition) uses that instead.
     pub friction: f32,
     /// Particle-particle self-collision (default false).
     pub self_collision: bool,

@@ -34,6 +34,9 @@ pub struct ClothModel {
     pub dihedral: Vec<Dihedral>,
     /// Ranges of `dihedral` with one colour each.
     pub dihedral_colours: Vec<Range<usize>>,
+    /// Coulomb friction coefficient between this cloth and the body: the config's, or a
+    /// garment's own (`Template::cloth`).
+    pub friction: f32,
 }
 
 /// Checks that a mesh can be simulated: finite positions, valid indices, no degenerate or
@@ -265,6 +268,7 @@ impl ClothModel {
             distance_kind,
             dihedral,
             dihedral_colours,
+            friction: config.friction,
         })
     }
 

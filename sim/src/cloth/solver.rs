@@ -378,7 +378,7 @@ impl<'m> Solver<'m> {
     /// stage 1.8 times slower and the sweep after it slower too (10k T-shirt; a worker woken
     /// every substep, positions' cache lines moving between cores).
     fn collide(&mut self, tb: f32, te: f32) {
-        let (thickness, mu) = (self.config.thickness, self.config.friction);
+        let (thickness, mu) = (self.config.thickness, self.model.friction);
         for (i, p) in &self.active {
             let i = *i as usize;
             let x = &mut self.x[i];

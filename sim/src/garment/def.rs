@@ -31,6 +31,18 @@ pub struct GarmentDef {
     /// Sizes: the garment graded for other bodies (none: one size, the canonical body's).
     #[serde(default)]
     pub grading: Option<GradingDef>,
+    /// The fabric's contact with the body (none: the simulator config's).
+    #[serde(default)]
+    pub material: Option<MaterialDef>,
+}
+
+/// What a garment's fabric brings to the simulation besides its shape.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialDef {
+    /// Coulomb friction coefficient between this garment and the body, in place of the
+    /// simulator config's `friction` (from 0 to 2).
+    pub friction: Option<f32>,
 }
 
 /// How a garment is graded in sizes, as shops do: each size is the garment made for a
@@ -157,6 +169,11 @@ impl CutDef {
 }
 
 impl GarmentDef {
+    /// The garment's own friction against the body (`[material] friction`), if it has one.
+    pub fn friction(&self) -> Option<f32> {
+        self.material.and_then(|m| m.friction)
+    }
+
     /// Parses and checks a definition; `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, String> {
         let def: GarmentDef = toml::from_str(text).map_err(|e| format!("{origin}: {e}"))?;
@@ -174,6 +191,13 @@ impl GarmentDef {
         for p in &def.parts {
             if !(0.0..=0.2).contains(&p.ease) {
                 return Err(format!("{origin}: ease must be from 0 to 0.2 m"));
+            }
+        }
+        if let Some(mu) = def.friction() {
+            if !(0.0..=2.0).contains(&mu) {
+                return Err(format!(
+                    "{origin}: material friction must be from 0 to 2 (got {mu})"
+                ));
             }
         }
         if let Some(g) = &def.grading {

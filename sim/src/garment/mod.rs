@@ -151,7 +151,11 @@ pub fn build_template(
     key: String,
 ) -> Result<Template, GarmentError> {
     let helpers = build::read_helpers(helpers_path)?;
-    let config = SimConfig::default();
+    // The template comes to rest with its own fabric's friction.
+    let config = SimConfig {
+        friction: def.friction().unwrap_or(SimConfig::default().friction),
+        ..SimConfig::default()
+    };
     let built = build::build(def, &helpers, canonical, &config, vertices, true)?;
     let parts = build::part_of(def, canonical, &built.mesh.vertices)?;
     let skeleton = &canonical.model.skeleton;
@@ -184,6 +188,7 @@ pub fn build_template(
             resolution: vertices,
             key,
             size: None,
+            friction: def.friction(),
             build: serde_json::json!({
                 "vertices": mesh.vertices.len(),
                 "triangles": mesh.triangles.len(),
@@ -417,10 +422,13 @@ impl Library {
     }
 
     /// Imports a user's OBJ as garment `name` (see [`import_mesh`]) and stores it.
+    /// `friction` is the garment's own friction against the body (`None`: the simulator
+    /// config's), as a built-in definition's `[material]` gives it.
     pub fn import(
         &self,
         obj: &Path,
         name: &str,
+        friction: Option<f32>,
         model: &BodyModel,
     ) -> Result<(Template, PathBuf), GarmentError> {
         if name.is_empty()
@@ -439,9 +447,16 @@ impl Library {
                 reason: format!("{name} is a built-in garment; choose another name"),
             });
         }
+        if let Some(mu) = friction.filter(|mu| !(0.0..=2.0).contains(mu)) {
+            return Err(GarmentError::Rejected {
+                path: obj.to_path_buf(),
+                reason: format!("friction must be from 0 to 2 (got {mu})"),
+            });
+        }
         let mesh = TriMesh::read_obj(obj)?.in_first_use_order();
         let canonical = model.shape(&Default::default())?;
-        let t = import_mesh(mesh, name, obj, &canonical)?;
+        let mut t = import_mesh(mesh, name, obj, &canonical)?;
+        t.meta.friction = friction;
         let path = self.user_path(name);
         store(&t, &path)?;
         Ok((t, path))
@@ -531,6 +546,7 @@ pub fn grade(
         0.0,
         &SimConfig {
             gravity: [0.0; 3],
+            friction: base.meta.friction.unwrap_or(SimConfig::default().friction),
             ..SimConfig::default()
         },
         true,
@@ -618,6 +634,7 @@ pub fn import_mesh(
             resolution: 0,
             key: String::new(),
             size: None,
+            friction: None,
             build: serde_json::json!({
                 "source": path.display().to_string(),
                 "vertices": mesh.vertices.len(),

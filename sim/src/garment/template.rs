@@ -16,6 +16,7 @@ use super::GarmentError;
 use super::skin::Binding;
 use crate::body::skinning::{self, SkinWeights};
 use crate::body::{PosedBody, ShapeParams, ShapedBody};
+use crate::cloth::{ClothModel, SimConfig, SimError};
 use crate::mesh::TriMesh;
 
 /// Reach of the smoothing of the shape moves in [`Template::reshape`] (m): neighbour
@@ -45,6 +46,10 @@ pub struct TemplateMeta {
     /// reference body it is made for (`None`: made for the canonical body).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub size: Option<SizeMeta>,
+    /// The garment's own friction against the body (its definition's `[material]`; `None`:
+    /// the simulator config's). [`Template::cloth`] cooks it into the cloth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction: Option<f32>,
 }
 
 /// A graded template's size.
@@ -78,6 +83,16 @@ fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
 }
 
 impl Template {
+    /// The template cooked for the simulator with `config`, its fabric's friction
+    /// (`meta.friction`) in place of the config's when the garment has its own.
+    pub fn cloth(&self, config: &SimConfig) -> Result<ClothModel, SimError> {
+        let mut cloth = ClothModel::new(&self.mesh, config, &[])?;
+        if let Some(mu) = self.meta.friction {
+            cloth.friction = mu;
+        }
+        Ok(cloth)
+    }
+
     /// The top opening: the boundary loop highest on the template (a top's neckline,
     /// trousers' waistband); empty for a closed mesh.
     pub fn top_opening(&self) -> Vec<u32> {
