@@ -189,6 +189,27 @@ fn parts_merge_into_the_same_dataset() {
             .collect()
     };
     assert_eq!(files(&merged), files(&whole));
+    assert_eq!(merged.program_sha256.as_deref().map(str::len), Some(64));
+    // A part draped by another build is refused unless asked for.
+    let mp = b.join("manifest.part-1-of-2.json");
+    let text = std::fs::read_to_string(&mp).unwrap();
+    let sha = merged.program_sha256.clone().unwrap();
+    std::fs::write(&mp, text.replace(&sha, &"0".repeat(64))).unwrap();
+    let merge = |extra: &[&str]| {
+        run(drape()
+            .args(["data", "merge"])
+            .arg(&a)
+            .arg(&b)
+            .arg("-o")
+            .arg(t.path().join("mixed"))
+            .args(extra))
+    };
+    let (ok, text) = merge(&[]);
+    assert!(!ok && text.contains("another build of drape"), "{text}");
+    let (ok, text) = merge(&["--mixed-builds"]);
+    assert!(ok, "{text}");
+    let mixed = Dataset::open(&t.path().join("mixed")).unwrap().manifest;
+    assert_eq!(mixed.program_sha256, None);
     // Bad part specs are refused.
     let (ok, text) = run(drape()
         .args(["gen", "tiny", "--shard", "2/2", "-o"])
@@ -230,6 +251,54 @@ fn tampered_and_truncated_shards_are_named() {
     let ds = Dataset::open(t.path()).unwrap();
     assert!(ds.samples(Split::Train).any(|s| s.is_err()));
     assert!(ds.samples(Split::Val).all(|s| s.is_ok()));
+}
+
+/// What a CPU without FMA, AVX, AVX2 and AVX-512 would run: glibc picks its maths
+/// functions by the CPU at run time, and its hwcaps tunable makes it pick the versions for
+/// a CPU without those features.
+const OLDER_CPU: &str = "glibc.cpu.hwcaps=-AVX2,-FMA,-AVX,-AVX512F";
+
+/// Whether [`OLDER_CPU`] changes what glibc computes here: Python's `math.exp` and
+/// `math.sin` (glibc's f64 functions) of 20,000 arguments, with and without it.
+fn older_cpu_changes_glibc() -> bool {
+    let probe = |tunables: &str| {
+        let out = Command::new("python3")
+            .env("GLIBC_TUNABLES", tunables)
+            .args([
+                "-c",
+                "import math\nprint(sum(hash((math.exp(i * 1e-3 - 10), math.sin(i * 1e-3))) for i in range(20000)))",
+            ])
+            .output()
+            .expect("python3 runs");
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    probe("") != probe(OLDER_CPU)
+}
+
+#[test]
+fn a_cpu_without_fma_or_avx_makes_the_same_bytes() {
+    // Across machines the same program must make the same dataset. The drapes use only
+    // f32 maths functions, which glibc computes alike with and without FMA and AVX (its f64
+    // ones differ: the probe); so the shards are byte-identical.
+    let (_, dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    let other = t.path().join("older-cpu");
+    let (ok, text) = run(drape()
+        .env("GLIBC_TUNABLES", OLDER_CPU)
+        .args(["gen", "tiny", "-o"])
+        .arg(&other));
+    assert!(ok, "{text}");
+    let (a, b) = (shard_bytes(dir), shard_bytes(&other));
+    assert_eq!(a.len(), b.len());
+    for ((na, ba), (nb, bb)) in a.iter().zip(&b) {
+        assert_eq!(na, nb);
+        assert!(ba == bb, "{na} differs when glibc runs as on an older CPU");
+    }
+    if !older_cpu_changes_glibc() {
+        eprintln!(
+            "note: glibc computes the same here with {OLDER_CPU} (no such CPU features or another glibc): this run compared the program with itself"
+        );
+    }
 }
 
 #[test]

@@ -162,7 +162,7 @@ pub fn verify(dir: &Path) -> Result<(usize, Vec<String>), DatasetError> {
 /// Joins the part manifests found in `dirs` (all parts of one dataset, each shard in one of
 /// the folders) into `out/manifest.json`, copying shards into `out` when they are elsewhere.
 /// Every shard's sha256 is checked on the way.
-pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest, DatasetError> {
+pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifest, DatasetError> {
     let mut parts: BTreeMap<u32, (PathBuf, Manifest)> = BTreeMap::new();
     let mut total: Option<u32> = None;
     for d in dirs {
@@ -222,6 +222,19 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest, DatasetError> {
                 d.display()
             )));
         }
+        if m.program_sha256 != first.program_sha256 && !mixed_builds {
+            let short = |s: &Option<String>| {
+                s.as_deref().map_or("not recorded".to_string(), |s| {
+                    s[..s.len().min(12)].to_string()
+                })
+            };
+            return Err(DatasetError::Invalid(format!(
+                "part {i} in {} was draped by another build of drape than part 0 (program sha256 {} against {}); two builds drape differently by up to 15 mm (docs/datasets.md): regenerate it with part 0's binary, or pass --mixed-builds to join them anyway",
+                d.display(),
+                short(&m.program_sha256),
+                short(&first.program_sha256)
+            )));
+        }
     }
     std::fs::create_dir_all(out).map_err(|e| DatasetError::Io {
         path: out.to_path_buf(),
@@ -262,10 +275,14 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest, DatasetError> {
             }
         }
     }
+    let one_build = parts
+        .values()
+        .all(|(_, m)| m.program_sha256 == first.program_sha256);
     let merged = Manifest {
         part: 0,
         parts: 1,
         shards,
+        program_sha256: first.program_sha256.clone().filter(|_| one_build),
         ..first.clone()
     };
     write_atomic(

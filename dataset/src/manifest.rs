@@ -89,8 +89,27 @@ pub struct Manifest {
     /// written before it was recorded: the config's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f32>,
+    /// sha256 of the program that draped (`drape`'s executable; absent in manifests
+    /// written before it was recorded). Two builds of the same source drape differently
+    /// (by up to 15 mm: docs/datasets.md), so `drape data merge` joins only parts of one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub program_sha256: Option<String>,
     /// Shards, in plan order.
     pub shards: Vec<ShardRecord>,
+}
+
+/// sha256 of the running executable, hex (`None` if it cannot be read); computed once.
+pub fn program_sha256() -> Option<String> {
+    static SHA: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    SHA.get_or_init(|| {
+        use sha2::{Digest, Sha256};
+        let path = std::env::current_exe().ok()?;
+        let mut file = std::fs::File::open(path).ok()?;
+        let mut h = Sha256::new();
+        std::io::copy(&mut file, &mut h).ok()?;
+        Some(crate::config::hex(&h.finalize()))
+    })
+    .clone()
 }
 
 /// Failure counts of a group of samples.
@@ -149,6 +168,7 @@ impl Manifest {
             static_sha256,
             size_templates: BTreeMap::new(),
             friction: None,
+            program_sha256: program_sha256(),
             shards,
         }
     }

@@ -68,6 +68,10 @@ pub enum DataCommand {
         /// Output folder (may be the parts' folder itself).
         #[arg(short, long, value_name = "DIR")]
         output: PathBuf,
+        /// Join parts draped by different builds of drape (refused by default: two builds
+        /// drape differently by up to 15 mm); the merged manifest then records no program.
+        #[arg(long)]
+        mixed_builds: bool,
     },
     /// How much of a drape no input determines: redrape samples with the starting template
     /// moved by micrometres and measure Edist to the dataset's drape (the floor under a
@@ -395,12 +399,15 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
             }
             let m = &ds.manifest;
             println!(
-                "{} ({}, {} vertices): program {} at {}, config sha256 {}",
+                "{} ({}, {} vertices): program {} at {} (build sha256 {}), config sha256 {}",
                 i.name,
                 i.garment,
                 i.vertices,
                 m.program_version,
                 &m.git_revision[..m.git_revision.len().min(12)],
+                m.program_sha256
+                    .as_deref()
+                    .map_or("not recorded", |s| &s[..s.len().min(12)]),
                 &m.config_sha256[..12]
             );
             for s in Split::ALL {
@@ -491,8 +498,12 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 anyhow::bail!("{} bad shard(s) in {}", problems.len(), dir.display())
             }
         }
-        DataCommand::Merge { dirs, output } => {
-            let m = inspect::merge(&dirs, &output)?;
+        DataCommand::Merge {
+            dirs,
+            output,
+            mixed_builds,
+        } => {
+            let m = inspect::merge(&dirs, &output, mixed_builds)?;
             let t = m.tally();
             println!(
                 "merged {} shards ({} samples, {} failed) into {}",
