@@ -636,17 +636,22 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
         obj.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let o = drape(&[
-        "--assets",
-        a,
-        "garment",
-        "import",
-        obj.to_str().unwrap(),
-        "--name",
-        "slippery-jeans",
-        "--friction",
-        "0.3",
-    ]);
+    let import = |mu: &str| {
+        drape(&[
+            "--assets",
+            a,
+            "garment",
+            "import",
+            obj.to_str().unwrap(),
+            "--name",
+            "slippery-jeans",
+            "--friction",
+            mu,
+        ])
+    };
+    let o = import("3");
+    assert!(!o.status.success() && stderr(&o).contains("friction must be from 0 to 2"));
+    let o = import("0.3");
     assert!(o.status.success(), "{}", stderr(&o));
     let check = |name: &str, samples: &str, report: &Path| {
         let o = drape(&[

@@ -46,12 +46,32 @@ pub struct GenOptions {
     pub part: u32,
     /// Parts the dataset is split into (1: the whole dataset).
     pub parts: u32,
+    /// Resume drapes made by another build of drape (refused by default: two builds drape
+    /// differently); the manifest then records no program.
+    pub mixed_builds: bool,
 }
 
 impl Default for GenOptions {
     fn default() -> Self {
-        Self { part: 0, parts: 1 }
+        Self {
+            part: 0,
+            parts: 1,
+            mixed_builds: false,
+        }
     }
+}
+
+/// What a dataset folder was started with (`config.json`): the resolved config and its
+/// sha256, the garment's own friction (for a garment that has one) and the program's
+/// sha256 (absent in folders started before they were recorded).
+#[derive(Debug, Serialize, Deserialize)]
+struct Stamp {
+    config_sha256: String,
+    config: serde_json::Value,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    garment_friction: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    program_sha256: Option<String>,
 }
 
 /// Progress of a run, for a progress bar.
@@ -309,6 +329,13 @@ fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, Da
     Ok(record)
 }
 
+/// The first 12 hex digits of a sha256, or `not recorded`.
+pub fn short_sha(sha: &Option<String>) -> String {
+    sha.as_deref().map_or("not recorded".to_string(), |s| {
+        s[..s.len().min(12)].to_string()
+    })
+}
+
 /// Whether `dir` holds finished drapes: partial drapes or shard records.
 fn holds_drapes(dir: &Path) -> bool {
     ["partial", "records"].iter().any(|sub| {
@@ -334,33 +361,68 @@ pub fn generate(
             opts.parts.saturating_sub(1)
         )));
     }
+    // A folder holds one dataset: refuse another config (before any work), another
+    // garment material or drapes of another build.
+    let stamp_path = dir.join("config.json");
+    let old: Option<Stamp> = match std::fs::read(&stamp_path) {
+        Ok(bytes) => Some(
+            serde_json::from_slice(&bytes)
+                .map_err(|e| DatasetError::Invalid(format!("{}: {e}", stamp_path.display())))?,
+        ),
+        Err(_) => None,
+    };
+    let refuse = |what: &str| {
+        DatasetError::Invalid(format!(
+            "{} holds a dataset of another {what} ({}); use a new folder",
+            dir.display(),
+            stamp_path.display()
+        ))
+    };
+    let stamp = Stamp {
+        config_sha256: config.hash(),
+        config: config.resolved_json(),
+        garment_friction: None,
+        program_sha256: crate::manifest::program_sha256(),
+    };
+    if old
+        .as_ref()
+        .is_some_and(|o| o.config_sha256 != stamp.config_sha256 || o.config != stamp.config)
+    {
+        return Err(refuse("config"));
+    }
+    let (model, library, template) = load_inputs(config, assets, log)?;
+    let stamp = Stamp {
+        garment_friction: template.meta.friction.map(crate::config::f32_as_written),
+        ..stamp
+    };
+    // Whether the drapes of this folder all come from this program.
+    let mut one_build = true;
+    if let Some(o) = &old {
+        if o.garment_friction != stamp.garment_friction {
+            return Err(refuse("garment material (its own friction)"));
+        }
+        if o.program_sha256 != stamp.program_sha256 && holds_drapes(dir) {
+            if o.program_sha256.is_some() && !opts.mixed_builds {
+                return Err(DatasetError::Invalid(format!(
+                    "{} holds drapes made by another build of drape (program sha256 {} in {}, this one {}); two builds drape differently by up to 15 mm (docs/datasets.md): resume with that binary, use a new folder, or pass --mixed-builds",
+                    dir.display(),
+                    short_sha(&o.program_sha256),
+                    stamp_path.display(),
+                    short_sha(&stamp.program_sha256)
+                )));
+            }
+            one_build = false;
+        }
+    }
     for sub in ["", "partial", "records"] {
         let d = dir.join(sub);
         std::fs::create_dir_all(&d).map_err(|e| DatasetError::Io { path: d, source: e })?;
     }
-    let (model, library, template) = load_inputs(config, assets, log)?;
-    // A folder holds one dataset: refuse to mix configs, or a garment's own friction
-    // (its definition's `[material]`, recorded only for a garment that has one).
-    let hash = config.hash();
-    let stamp = dir.join("config.json");
-    let mut stamped = serde_json::json!({
-        "config_sha256": hash,
-        "config": config.resolved_json(),
-    });
-    if let Some(mu) = template.meta.friction {
-        stamped["garment_friction"] = serde_json::json!(mu);
-    }
-    let resolved = serde_json::to_vec_pretty(&stamped).expect("json");
-    match std::fs::read(&stamp) {
-        Ok(old) if old != resolved => {
-            return Err(DatasetError::Invalid(format!(
-                "{} holds a dataset of another config or garment material ({}); use a new folder",
-                dir.display(),
-                stamp.display()
-            )));
-        }
-        Ok(_) => {}
-        Err(_) => write_atomic(&stamp, &resolved)?,
+    if old.is_none() {
+        write_atomic(
+            &stamp_path,
+            &serde_json::to_vec_pretty(&stamp).expect("json"),
+        )?;
     }
     let wardrobe = Wardrobe::new(template, config, &model, assets, log)?;
     let template = &wardrobe.base;
@@ -373,17 +435,16 @@ pub fn generate(
     let st = Static::new(&template.mesh, &model, &job.canonical.vertices);
     let static_bytes = st.encode();
     let static_path = dir.join(STATIC_FILE);
-    if let Ok(old) = std::fs::read(&static_path) {
-        if old != static_bytes && holds_drapes(dir) {
-            return Err(DatasetError::Invalid(format!(
-                "{} holds drapes of another {} template ({} differs from the one built now: the definition or the build code changed); use a new folder",
-                dir.display(),
-                config.garment,
-                static_path.display()
-            )));
-        }
+    let old_static = std::fs::read(&static_path).ok();
+    if old_static.as_ref().is_some_and(|b| *b != static_bytes) && holds_drapes(dir) {
+        return Err(DatasetError::Invalid(format!(
+            "{} holds drapes of another {} template ({} differs from the one built now: the definition or the build code changed); use a new folder",
+            dir.display(),
+            config.garment,
+            static_path.display()
+        )));
     }
-    if std::fs::read(&static_path).ok().as_deref() != Some(&static_bytes[..]) {
+    if old_static.as_deref() != Some(&static_bytes[..]) {
         write_atomic(&static_path, &static_bytes)?;
     }
 
@@ -467,6 +528,7 @@ pub fn generate(
     );
     manifest.size_templates = wardrobe.size_fingerprints();
     manifest.friction = Some(wardrobe.friction());
+    manifest.program_sha256 = stamp.program_sha256.clone().filter(|_| one_build);
     let manifest_path = dir.join(manifest_name(opts));
     write_atomic(
         &manifest_path,

@@ -211,11 +211,18 @@ pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifes
         )));
     }
     let first = &parts[&0].1;
+    // A manifest written before the friction was recorded draped with its config's.
+    let friction = |m: &Manifest| -> Result<f32, DatasetError> {
+        Ok(match m.friction {
+            Some(mu) => mu,
+            None => m.dataset_config()?.sim.friction,
+        })
+    };
     for (i, (d, m)) in &parts {
         if m.config_sha256 != first.config_sha256
             || m.static_sha256 != first.static_sha256
             || m.size_templates != first.size_templates
-            || m.friction != first.friction
+            || friction(m)? != friction(first)?
         {
             return Err(DatasetError::Invalid(format!(
                 "part {i} in {} was made from another config or template",
@@ -223,16 +230,11 @@ pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifes
             )));
         }
         if m.program_sha256 != first.program_sha256 && !mixed_builds {
-            let short = |s: &Option<String>| {
-                s.as_deref().map_or("not recorded".to_string(), |s| {
-                    s[..s.len().min(12)].to_string()
-                })
-            };
             return Err(DatasetError::Invalid(format!(
                 "part {i} in {} was draped by another build of drape than part 0 (program sha256 {} against {}); two builds drape differently by up to 15 mm (docs/datasets.md): regenerate it with part 0's binary, or pass --mixed-builds to join them anyway",
                 d.display(),
-                short(&m.program_sha256),
-                short(&first.program_sha256)
+                crate::generate::short_sha(&m.program_sha256),
+                crate::generate::short_sha(&first.program_sha256)
             )));
         }
     }

@@ -98,13 +98,16 @@ pub struct Manifest {
     pub shards: Vec<ShardRecord>,
 }
 
-/// sha256 of the running executable, hex (`None` if it cannot be read); computed once.
+/// sha256 of the running executable, hex (`None` if it cannot be read); computed once, at
+/// the first call (`drape gen` calls it before it drapes).
 pub fn program_sha256() -> Option<String> {
     static SHA: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
     SHA.get_or_init(|| {
         use sha2::{Digest, Sha256};
-        let path = std::env::current_exe().ok()?;
-        let mut file = std::fs::File::open(path).ok()?;
+        // /proc/self/exe opens the running file even after a rebuild replaced it.
+        let mut file = std::fs::File::open("/proc/self/exe")
+            .or_else(|_| std::fs::File::open(std::env::current_exe()?))
+            .ok()?;
         let mut h = Sha256::new();
         std::io::copy(&mut file, &mut h).ok()?;
         Some(crate::config::hex(&h.finalize()))

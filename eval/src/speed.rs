@@ -247,16 +247,16 @@ impl<'w> Redraper<'w> {
                 differ.into_iter().collect::<Vec<_>>().join(", ")
             )));
         }
-        // The garment's friction must be the one it was draped with.
-        if let Some(theirs) = data.manifest.friction {
-            let ours = wardrobe.friction();
-            if ours != theirs {
-                return Err(EvalError::Invalid(format!(
-                    "{} was draped with friction {theirs} between the {} and the body; it is {ours} here (its definition's [material] changed): regenerate the dataset",
-                    data.dir.display(),
-                    config.garment
-                )));
-            }
+        // The garment's friction must be the one it was draped with (a manifest written
+        // before it was recorded: the config's).
+        let theirs = data.manifest.friction.unwrap_or(config.sim.friction);
+        let ours = wardrobe.friction();
+        if ours != theirs {
+            return Err(EvalError::Invalid(format!(
+                "{} was draped with friction {theirs} between the {} and the body; it is {ours} here (the garment's own friction changed): regenerate the dataset",
+                data.dir.display(),
+                config.garment
+            )));
         }
         let sizes = data
             .manifest

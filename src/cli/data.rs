@@ -32,6 +32,10 @@ pub struct GenArgs {
     /// accepting a measured rate without regenerating, e.g. `drape reproduce`'s plans).
     #[arg(long, value_name = "SHARE")]
     pub max_failure_rate: Option<f64>,
+    /// Resume a folder whose drapes another build of drape made (refused by default: two
+    /// builds drape differently by up to 15 mm); its manifest then records no program.
+    #[arg(long)]
+    pub mixed_builds: bool,
 }
 
 /// `drape data`.
@@ -178,7 +182,11 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
             bar.inc(1);
         }
     };
-    let opts = GenOptions { part, parts };
+    let opts = GenOptions {
+        part,
+        parts,
+        mixed_builds: args.mixed_builds,
+    };
     let summary = pool.install(|| {
         generate::generate(
             &config,
@@ -405,9 +413,7 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 i.vertices,
                 m.program_version,
                 &m.git_revision[..m.git_revision.len().min(12)],
-                m.program_sha256
-                    .as_deref()
-                    .map_or("not recorded", |s| &s[..s.len().min(12)]),
+                generate::short_sha(&m.program_sha256),
                 &m.config_sha256[..12]
             );
             for s in Split::ALL {

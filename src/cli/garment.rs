@@ -542,7 +542,7 @@ fn check(
         )?),
         _ => None,
     };
-    let friction = t.meta.friction.unwrap_or(config.friction);
+    let friction = t.friction(&config);
     println!(
         "{name}: {} vertices, {} drapes ({}), {}, {}, friction {friction}{}, both cores across drapes",
         t.len(),
@@ -696,8 +696,7 @@ fn check(
         "vertices": t.len(),
         "drapes": rows.len(),
         "substeps": config.substeps,
-        // As written (0.3, not the f32's 0.30000001192092896).
-        "friction": friction.to_string().parse::<f64>().unwrap_or(f64::NAN),
+        "friction": dataset::config::f32_as_written(friction),
         "converged_share": converged as f64 / n,
         "deepest_mm": f("deepest_mm").into_iter().fold(0.0, f64::max),
         "strain_p95_mean": p95.iter().sum::<f64>() / n,

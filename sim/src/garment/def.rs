@@ -168,6 +168,15 @@ impl CutDef {
     }
 }
 
+/// Checks a garment's own friction: from 0 to 2 (the error says so).
+pub fn check_friction(mu: f32) -> Result<(), String> {
+    if (0.0..=2.0).contains(&mu) {
+        Ok(())
+    } else {
+        Err(format!("friction must be from 0 to 2 (got {mu})"))
+    }
+}
+
 impl GarmentDef {
     /// The garment's own friction against the body (`[material] friction`), if it has one.
     pub fn friction(&self) -> Option<f32> {
@@ -194,11 +203,7 @@ impl GarmentDef {
             }
         }
         if let Some(mu) = def.friction() {
-            if !(0.0..=2.0).contains(&mu) {
-                return Err(format!(
-                    "{origin}: material friction must be from 0 to 2 (got {mu})"
-                ));
-            }
+            check_friction(mu).map_err(|e| format!("{origin}: material {e}"))?;
         }
         if let Some(g) = &def.grading {
             if g.by.is_empty() || g.sizes.is_empty() {

@@ -152,9 +152,10 @@ pub fn build_template(
 ) -> Result<Template, GarmentError> {
     let helpers = build::read_helpers(helpers_path)?;
     // The template comes to rest with its own fabric's friction.
+    let default = SimConfig::default();
     let config = SimConfig {
-        friction: def.friction().unwrap_or(SimConfig::default().friction),
-        ..SimConfig::default()
+        friction: def.friction().unwrap_or(default.friction),
+        ..default
     };
     let built = build::build(def, &helpers, canonical, &config, vertices, true)?;
     let parts = build::part_of(def, canonical, &built.mesh.vertices)?;
@@ -447,11 +448,11 @@ impl Library {
                 reason: format!("{name} is a built-in garment; choose another name"),
             });
         }
-        if let Some(mu) = friction.filter(|mu| !(0.0..=2.0).contains(mu)) {
-            return Err(GarmentError::Rejected {
+        if let Some(mu) = friction {
+            def::check_friction(mu).map_err(|reason| GarmentError::Rejected {
                 path: obj.to_path_buf(),
-                reason: format!("friction must be from 0 to 2 (got {mu})"),
-            });
+                reason,
+            })?;
         }
         let mesh = TriMesh::read_obj(obj)?.in_first_use_order();
         let canonical = model.shape(&Default::default())?;
@@ -546,7 +547,7 @@ pub fn grade(
         0.0,
         &SimConfig {
             gravity: [0.0; 3],
-            friction: base.meta.friction.unwrap_or(SimConfig::default().friction),
+            friction: base.friction(&SimConfig::default()),
             ..SimConfig::default()
         },
         true,

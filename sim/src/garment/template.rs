@@ -87,10 +87,13 @@ impl Template {
     /// (`meta.friction`) in place of the config's when the garment has its own.
     pub fn cloth(&self, config: &SimConfig) -> Result<ClothModel, SimError> {
         let mut cloth = ClothModel::new(&self.mesh, config, &[])?;
-        if let Some(mu) = self.meta.friction {
-            cloth.friction = mu;
-        }
+        cloth.friction = self.friction(config);
         Ok(cloth)
+    }
+
+    /// The friction this garment drapes with under `config`: its own, else the config's.
+    pub fn friction(&self, config: &SimConfig) -> f32 {
+        self.meta.friction.unwrap_or(config.friction)
     }
 
     /// The top opening: the boundary loop highest on the template (a top's neckline,
