@@ -52,7 +52,13 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     let m = &ds.manifest;
     let c = m.dataset_config().unwrap();
     assert_eq!(m.samples().count() as u64, c.total_samples());
-    assert_eq!(m.git_revision.len(), 40, "git revision recorded");
+    // The commit, with `-dirty` when built from uncommitted changes.
+    let commit = m.git_revision.trim_end_matches("-dirty");
+    assert!(
+        commit.len() == 40 && commit.chars().all(|c| c.is_ascii_hexdigit()),
+        "git revision recorded: {}",
+        m.git_revision
+    );
     // Splits are by body, 2/1/1 bodies x 2 poses.
     for (split, bodies) in [(Split::Train, 2), (Split::Val, 1), (Split::Test, 1)] {
         let recs: Vec<_> = m.samples().filter(|s| s.plan.split == split).collect();

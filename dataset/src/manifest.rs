@@ -15,6 +15,17 @@ pub const MANIFEST_FORMAT: &str = "drape-dataset/1";
 /// The git revision the program was built from ("unknown" outside a checkout).
 pub const GIT_REVISION: &str = env!("DRAPE_GIT_REVISION");
 
+/// A git revision shortened to 12 hex digits, keeping a `-dirty` mark.
+pub fn short_revision(rev: &str) -> String {
+    let commit = rev.trim_end_matches("-dirty");
+    let short = commit.get(..12).unwrap_or(commit);
+    if commit.len() < rev.len() {
+        format!("{short}-dirty")
+    } else {
+        short.to_string()
+    }
+}
+
 /// One sample.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SampleRecord {
@@ -273,5 +284,16 @@ mod tests {
         let back = m.dataset_config().unwrap();
         assert_eq!(back.sim.stretch_iterations, 1);
         assert_eq!(back.sim.substeps, config.sim.substeps);
+    }
+
+    #[test]
+    fn a_short_revision_keeps_the_dirty_mark() {
+        let rev = "0123456789abcdef0123456789abcdef01234567";
+        assert_eq!(short_revision(rev), "0123456789ab");
+        assert_eq!(
+            short_revision(&format!("{rev}-dirty")),
+            "0123456789ab-dirty"
+        );
+        assert_eq!(short_revision("unknown"), "unknown");
     }
 }

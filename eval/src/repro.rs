@@ -1107,7 +1107,7 @@ pub fn write_report(
                     ok(dataset::config::Split::Val),
                     ok(dataset::config::Split::Test),
                     m.program_version,
-                    m.git_revision.get(..12).unwrap_or(&m.git_revision)
+                    dataset::manifest::short_revision(&m.git_revision)
                 )
             })
             .unwrap_or_else(|| "– | – | – | –".into());

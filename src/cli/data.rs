@@ -412,7 +412,7 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 i.garment,
                 i.vertices,
                 m.program_version,
-                &m.git_revision[..m.git_revision.len().min(12)],
+                dataset::manifest::short_revision(&m.git_revision),
                 generate::short_sha(&m.program_sha256),
                 &m.config_sha256[..12]
             );
