@@ -653,6 +653,28 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     assert!(!o.status.success() && stderr(&o).contains("friction must be from 0 to 2"));
     let o = import("0.3");
     assert!(o.status.success(), "{}", stderr(&o));
+    // The list names each garment's sizes and own friction.
+    let o = drape(&["--assets", a, "garment", "list"]);
+    let list = String::from_utf8_lossy(&o.stdout).to_string();
+    let line = |name: &str| {
+        list.lines()
+            .find(|l| l.starts_with(&format!("{name} ")))
+            .unwrap_or_else(|| panic!("{name}: {list}"))
+            .to_string()
+    };
+    assert!(
+        line("jeans").contains("[12 sizes by waist, hips, height, friction 0.8]"),
+        "{list}"
+    );
+    assert!(
+        line("tshirt").contains("12 sizes by chest") && !line("tshirt").contains("friction"),
+        "{list}"
+    );
+    assert!(
+        line("slippery-jeans").contains("imported")
+            && line("slippery-jeans").contains("[friction 0.3]"),
+        "{list}"
+    );
     let check = |name: &str, samples: &str, report: &Path| {
         let o = drape(&[
             "--assets",

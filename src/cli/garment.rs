@@ -53,7 +53,8 @@ enum GarmentCommand {
         #[arg(long, value_name = "MU")]
         friction: Option<f32>,
     },
-    /// List the garments: built-in ones (and whether they are cached) and imported ones.
+    /// List the garments: built-in ones (their sizes, own friction, and which resolutions are
+    /// cached) and imported ones (own friction).
     List,
     /// Render a garment: the canonical body, the template on it and alone; then one row per
     /// sampled body and pose: the posed body, the DQS warp on it and the simulated drape;
@@ -279,8 +280,15 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                     .collect();
                 sizes.sort_unstable();
                 let cached: Vec<String> = sizes.iter().map(usize::to_string).collect();
+                let graded = def.grading.as_ref().map_or_else(
+                    || "one size".to_string(),
+                    |g| format!("{} sizes by {}", g.sizes.len() + 1, g.by.join(", ")),
+                );
+                let friction = def
+                    .friction()
+                    .map_or_else(String::new, |mu| format!(", friction {mu}"));
                 println!(
-                    "{name:8} built-in  {}{}",
+                    "{name:8} built-in  {} [{graded}{friction}]{}",
                     def.description,
                     if cached.is_empty() {
                         String::new()
@@ -289,8 +297,26 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                     }
                 );
             }
-            for name in lib.user_names() {
-                println!("{name:8} imported  {}", lib.user_path(&name).display());
+            let users = lib.user_names();
+            let model = if users.is_empty() {
+                None
+            } else {
+                Some(load(ctx)?.0)
+            };
+            for name in &users {
+                let model = model.as_ref().expect("loaded for imported garments");
+                let friction = Template::load(
+                    &lib.user_path(name),
+                    model.triangles.len(),
+                    model.skeleton.len(),
+                )
+                .ok()
+                .and_then(|t| t.meta.friction)
+                .map_or_else(String::new, |mu| format!(" [friction {mu}]"));
+                println!(
+                    "{name:8} imported  {}{friction}",
+                    lib.user_path(name).display()
+                );
             }
             Ok(())
         }
