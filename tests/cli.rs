@@ -696,6 +696,14 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     };
     let (o, r) = check("slippery-jeans", "2", &out.path().join("slippery.json"));
     assert_eq!(r["summary"]["friction"], 0.3);
+    // Every drape counts its edges through the body and at double length.
+    for d in r["drapes"].as_array().unwrap() {
+        assert!(
+            d["edges_through_body"].is_u64() && d["edges_doubled"].is_u64(),
+            "{d}"
+        );
+    }
+    assert!(String::from_utf8_lossy(&o.stdout).contains("edges through the body"));
     let (slid, held) = (&r["drapes"][0], &r["drapes"][1]);
     assert_eq!(slid["case"], "random:4");
     assert_eq!(slid["converged"], false);

@@ -82,8 +82,9 @@ enum GarmentCommand {
     /// corner bodies of the shape range in the rest pose) and print, per drape and overall,
     /// convergence, penetration depth, p95 edge strain, how far the top opening came to rest
     /// below the DQS warp's (over 25 cm the garment slid down the body: a failed drape) and
-    /// time; also the share of edges the DQS warp stretches by more than 30% on the same
-    /// bodies and poses.
+    /// time; overall, edges through the body (ends outside, middle inside) and edges at
+    /// double their rest length; also the share of edges the DQS warp stretches by more
+    /// than 30% on the same bodies and poses.
     Check {
         /// Garment name.
         name: String,
@@ -624,6 +625,21 @@ fn check(
             }
             let mut d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
             d.judge_slide(&top, &warp);
+            // Edges through the body with both ends outside it (1 mm deep or more).
+            let collider =
+                sim::cloth::BodyCollider::new(&posed.vertices, &model.triangles, config.margin);
+            let through =
+                sim::cloth::drape::edges_through_body(&collider, &cloth.edges, &d.positions, 0.001);
+            // Edges at double their rest length or more: the strain figures' tail.
+            let doubled = cloth
+                .edges
+                .iter()
+                .filter(|[a, b]| {
+                    let (a, b) = (*a as usize, *b as usize);
+                    d.positions[a].distance(d.positions[b])
+                        > 2.0 * cloth.rest[a].distance(cloth.rest[b])
+                })
+                .count();
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
@@ -638,6 +654,8 @@ fn check(
                 "strain_max": r.strain.max,
                 "inside_after": r.penetration.count,
                 "deepest_mm": r.penetration.max_depth * 1e3,
+                "edges_through_body": through,
+                "edges_doubled": doubled,
                 "top_drop_cm": r.top_drop.map(|x| x * 100.0),
                 "warp_edges_over_30pct": warp_over,
             }))
@@ -739,6 +757,18 @@ fn check(
         "seconds_per_drape_mean": f("seconds").iter().sum::<f64>() / n,
         "warp_edges_over_30pct_mean": f("warp_edges_over_30pct").iter().sum::<f64>() / n,
         "warp_edges_over_30pct_max": f("warp_edges_over_30pct").into_iter().fold(0.0, f64::max),
+        "share_with_edges_through_body": rows
+            .iter()
+            .filter(|r| r["edges_through_body"].as_u64().unwrap_or(0) > 0)
+            .count() as f64
+            / n,
+        "edges_through_body": f("edges_through_body").iter().sum::<f64>(),
+        "share_with_edges_doubled": rows
+            .iter()
+            .filter(|r| r["edges_doubled"].as_u64().unwrap_or(0) > 0)
+            .count() as f64
+            / n,
+        "edges_doubled": f("edges_doubled").iter().sum::<f64>(),
         "wall_seconds": t0.elapsed().as_secs_f64(),
     });
     println!(
@@ -759,6 +789,18 @@ fn check(
         summary["warp_edges_over_30pct_max"].as_f64().unwrap_or(0.0) * 100.0,
         summary["wall_seconds"].as_f64().unwrap_or(0.0),
     );
+    if !warp_only {
+        println!(
+            "edges through the body (both ends outside, 1 mm deep or more): {:.0} in {:.0}% of drapes; edges at double their rest length or more: {:.0} in {:.0}% of drapes",
+            summary["edges_through_body"].as_f64().unwrap_or(0.0),
+            summary["share_with_edges_through_body"]
+                .as_f64()
+                .unwrap_or(0.0)
+                * 100.0,
+            summary["edges_doubled"].as_f64().unwrap_or(0.0),
+            summary["share_with_edges_doubled"].as_f64().unwrap_or(0.0) * 100.0,
+        );
+    }
     if let Some(p) = report {
         let json =
             serde_json::to_string_pretty(&serde_json::json!({"summary": summary, "drapes": rows}))?;

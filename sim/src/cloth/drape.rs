@@ -442,6 +442,28 @@ pub fn penetration(body: &BodyCollider, x: &[Vec3]) -> PenetrationStats {
     )
 }
 
+/// Edges of the cloth that pass through the body: a point at a quarter, half or three
+/// quarters along lies deeper than `tolerance` inside it, while the ends may both be
+/// outside (cloth caught on both sides of a limb, which the particle checks do not see).
+pub fn edges_through_body(
+    body: &BodyCollider,
+    edges: &[[u32; 2]],
+    x: &[Vec3],
+    tolerance: f32,
+) -> usize {
+    edges
+        .iter()
+        .filter(|[a, b]| {
+            let (p, q) = (x[*a as usize], x[*b as usize]);
+            [0.25f32, 0.5, 0.75].iter().any(|t| {
+                let m = p.lerp(q, *t);
+                depth(body, m, body.closest(m, VERIFY_RADIUS).as_ref())
+                    .is_some_and(|d| d > tolerance)
+            })
+        })
+        .count()
+}
+
 /// How deep `p` is inside the body (`None` outside), given its nearest surface point within
 /// [`VERIFY_RADIUS`] (`hit`, if any): as [`penetration`] counts it.
 fn depth(body: &BodyCollider, p: Vec3, hit: Option<&Hit>) -> Option<f32> {
@@ -739,6 +761,31 @@ mod tests {
         let v = serde_json::to_value(&r).unwrap();
         assert_eq!(v["failure"]["reason"], "slid_down");
         assert!((v["top_drop"].as_f64().unwrap() - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn an_edge_through_a_limb_is_found_where_its_ends_are_outside() {
+        // A 4 cm thick limb (a sphere here); particles 5 mm outside it.
+        let sphere = primitives::uv_sphere(Vec3::ZERO, 0.02, 48, 24);
+        let body = BodyCollider::new(&sphere.vertices, &sphere.triangles, 0.01);
+        let x = vec![
+            Vec3::new(-0.025, 0.0, 0.0),
+            Vec3::new(0.025, 0.0, 0.0),
+            Vec3::new(-0.025, 0.03, 0.0),
+            Vec3::new(0.025, 0.03, 0.0),
+            Vec3::new(0.0, 0.025, 0.0),
+        ];
+        assert!(
+            x.iter()
+                .all(|p| body.closest(*p, 0.05).unwrap().distance > 0.004)
+        );
+        // Across the limb: through it. Above it, and from the top down to touching: not.
+        let edges = [[0, 1], [2, 3], [4, 2]];
+        assert_eq!(edges_through_body(&body, &edges[..1], &x, 0.001), 1);
+        assert_eq!(edges_through_body(&body, &edges[1..], &x, 0.001), 0);
+        assert_eq!(edges_through_body(&body, &edges, &x, 0.001), 1);
+        // A tolerance deeper than the limb's half thickness finds nothing.
+        assert_eq!(edges_through_body(&body, &edges, &x, 0.03), 0);
     }
 
     #[test]
