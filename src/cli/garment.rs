@@ -734,6 +734,8 @@ fn check(
             .collect::<Vec<f64>>()
     };
     let p95 = f("strain_p95");
+    // Share of the drapes with a count above zero.
+    let share_nonzero = |k: &str| f(k).iter().filter(|&&x| x > 0.0).count() as f64 / n;
     let converged = rows.iter().filter(|r| r["converged"] == true).count();
     let summary = serde_json::json!({
         "garment": name,
@@ -757,17 +759,9 @@ fn check(
         "seconds_per_drape_mean": f("seconds").iter().sum::<f64>() / n,
         "warp_edges_over_30pct_mean": f("warp_edges_over_30pct").iter().sum::<f64>() / n,
         "warp_edges_over_30pct_max": f("warp_edges_over_30pct").into_iter().fold(0.0, f64::max),
-        "share_with_edges_through_body": rows
-            .iter()
-            .filter(|r| r["edges_through_body"].as_u64().unwrap_or(0) > 0)
-            .count() as f64
-            / n,
+        "share_with_edges_through_body": share_nonzero("edges_through_body"),
         "edges_through_body": f("edges_through_body").iter().sum::<f64>(),
-        "share_with_edges_doubled": rows
-            .iter()
-            .filter(|r| r["edges_doubled"].as_u64().unwrap_or(0) > 0)
-            .count() as f64
-            / n,
+        "share_with_edges_doubled": share_nonzero("edges_doubled"),
         "edges_doubled": f("edges_doubled").iter().sum::<f64>(),
         "wall_seconds": t0.elapsed().as_secs_f64(),
     });
