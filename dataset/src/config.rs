@@ -278,12 +278,6 @@ impl DatasetConfig {
     }
 }
 
-/// An f32 as its shortest decimal reads (0.8, not 0.800000011920929 as a plain cast to f64
-/// gives): for JSON written through `serde_json::Value`.
-pub fn f32_as_written(x: f32) -> f64 {
-    x.to_string().parse().unwrap_or(f64::NAN)
-}
-
 /// Lower-case hex of bytes.
 pub fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()

@@ -69,7 +69,7 @@ struct Stamp {
     config_sha256: String,
     config: serde_json::Value,
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    garment_friction: Option<f64>,
+    garment_friction: Option<f32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     program_sha256: Option<String>,
 }
@@ -329,13 +329,6 @@ fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, Da
     Ok(record)
 }
 
-/// The first 12 hex digits of a sha256, or `not recorded`.
-pub fn short_sha(sha: &Option<String>) -> String {
-    sha.as_deref().map_or("not recorded".to_string(), |s| {
-        s[..s.len().min(12)].to_string()
-    })
-}
-
 /// Whether `dir` holds finished drapes: partial drapes or shard records.
 fn holds_drapes(dir: &Path) -> bool {
     ["partial", "records"].iter().any(|sub| {
@@ -392,7 +385,7 @@ pub fn generate(
     }
     let (model, library, template) = load_inputs(config, assets, log)?;
     let stamp = Stamp {
-        garment_friction: template.meta.friction.map(crate::config::f32_as_written),
+        garment_friction: template.meta.friction,
         ..stamp
     };
     // Whether the drapes of this folder all come from this program.
@@ -406,9 +399,9 @@ pub fn generate(
                 return Err(DatasetError::Invalid(format!(
                     "{} holds drapes made by another build of drape (program sha256 {} in {}, this one {}); two builds drape differently by up to 15 mm (docs/datasets.md): resume with that binary, use a new folder, or pass --mixed-builds",
                     dir.display(),
-                    short_sha(&o.program_sha256),
+                    crate::manifest::short_sha(&o.program_sha256),
                     stamp_path.display(),
-                    short_sha(&stamp.program_sha256)
+                    crate::manifest::short_sha(&stamp.program_sha256)
                 )));
             }
             one_build = false;

@@ -233,8 +233,8 @@ pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifes
             return Err(DatasetError::Invalid(format!(
                 "part {i} in {} was draped by another build of drape than part 0 (program sha256 {} against {}); two builds drape differently by up to 15 mm (docs/datasets.md): regenerate it with part 0's binary, or pass --mixed-builds to join them anyway",
                 d.display(),
-                crate::generate::short_sha(&m.program_sha256),
-                crate::generate::short_sha(&first.program_sha256)
+                crate::manifest::short_sha(&m.program_sha256),
+                crate::manifest::short_sha(&first.program_sha256)
             )));
         }
     }

@@ -413,7 +413,7 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 i.vertices,
                 m.program_version,
                 dataset::manifest::short_revision(&m.git_revision),
-                generate::short_sha(&m.program_sha256),
+                dataset::manifest::short_sha(&m.program_sha256),
                 &m.config_sha256[..12]
             );
             for s in Split::ALL {

@@ -264,6 +264,8 @@ pub struct StrainStats {
     pub over_1pct: f32,
     /// Share of edges stretched more than 5%.
     pub over_5pct: f32,
+    /// Edges at twice their rest length or more (strain 100% and over).
+    pub doubled: usize,
 }
 
 /// Particles inside the body.
@@ -404,6 +406,7 @@ pub fn strain(model: &ClothModel, x: &[Vec3]) -> StrainStats {
         max: s[s.len() - 1],
         over_1pct: s.iter().filter(|&&e| e > 0.01).count() as f32 / n,
         over_5pct: s.iter().filter(|&&e| e > 0.05).count() as f32 / n,
+        doubled: s.iter().filter(|&&e| e >= 1.0).count(),
     }
 }
 
