@@ -630,6 +630,17 @@ fn check(
                 sim::cloth::BodyCollider::new(&posed.vertices, &model.triangles, config.margin);
             let through =
                 sim::cloth::drape::edges_through_body(&collider, &cloth.edges, &d.positions, 0.001);
+            // Where they cross: the bone that weighs most on the body triangle nearest to
+            // each edge's deepest point.
+            let mut by_bone = std::collections::BTreeMap::<String, usize>::new();
+            for e in &through {
+                let bone = e.tri.map_or("(deeper than 5 cm)".to_string(), |tri| {
+                    dominant_bone(&model, model.triangles[tri as usize][0])
+                });
+                *by_bone.entry(bone).or_default() += 1;
+            }
+            let through_deepest_mm = through.iter().map(|e| e.depth).fold(0.0, f32::max) * 1e3;
+            let through = through.len();
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
@@ -645,6 +656,8 @@ fn check(
                 "inside_after": r.penetration.count,
                 "deepest_mm": r.penetration.max_depth * 1e3,
                 "edges_through_body": through,
+                "edges_through_body_by_bone": by_bone,
+                "edges_through_body_deepest_mm": through_deepest_mm,
                 "edges_doubled": r.strain.doubled,
                 "top_drop_cm": r.top_drop.map(|x| x * 100.0),
                 "warp_edges_over_30pct": warp_over,
@@ -751,6 +764,8 @@ fn check(
         "warp_edges_over_30pct_max": f("warp_edges_over_30pct").into_iter().fold(0.0, f64::max),
         "share_with_edges_through_body": share_nonzero("edges_through_body"),
         "edges_through_body": f("edges_through_body").iter().sum::<f64>(),
+        "edges_through_body_by_bone": through_by_bone(&rows),
+        "edges_through_body_deepest_mm": f("edges_through_body_deepest_mm").into_iter().fold(0.0, f64::max),
         "share_with_edges_doubled": share_nonzero("edges_doubled"),
         "edges_doubled": f("edges_doubled").iter().sum::<f64>(),
         "wall_seconds": t0.elapsed().as_secs_f64(),
@@ -784,6 +799,26 @@ fn check(
             summary["edges_doubled"].as_f64().unwrap_or(0.0),
             summary["share_with_edges_doubled"].as_f64().unwrap_or(0.0) * 100.0,
         );
+        if let Some(bones) = summary["edges_through_body_by_bone"].as_array()
+            && !bones.is_empty()
+        {
+            println!(
+                "  where (the body bone nearest the deepest point: edges in drapes): {}; deepest {:.1} mm",
+                bones
+                    .iter()
+                    .map(|b| format!(
+                        "{} {} in {}",
+                        b["bone"].as_str().unwrap_or(""),
+                        b["edges"],
+                        b["drapes"]
+                    ))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                summary["edges_through_body_deepest_mm"]
+                    .as_f64()
+                    .unwrap_or(0.0)
+            );
+        }
     }
     if let Some(p) = report {
         let json =
@@ -791,6 +826,34 @@ fn check(
         sim::io::write_all_or_nothing(&[(&p, json.as_bytes())])?;
     }
     Ok(())
+}
+
+/// The name of the bone that weighs most on body vertex `v`.
+fn dominant_bone(model: &BodyModel, v: u32) -> String {
+    let (bones, weights) = (model.skin.bones[v as usize], model.skin.weights[v as usize]);
+    let i = (0..4)
+        .max_by(|&a, &b| weights[a].total_cmp(&weights[b]))
+        .unwrap_or(0);
+    model.skeleton.bones[bones[i] as usize].name.clone()
+}
+
+/// Edges through the body per bone over all drapes, most first: `{bone, edges, drapes}`.
+fn through_by_bone(rows: &[serde_json::Value]) -> serde_json::Value {
+    let mut total = std::collections::BTreeMap::<String, (u64, u64)>::new();
+    for r in rows {
+        if let Some(m) = r["edges_through_body_by_bone"].as_object() {
+            for (bone, n) in m {
+                let e = total.entry(bone.clone()).or_default();
+                e.0 += n.as_u64().unwrap_or(0);
+                e.1 += 1;
+            }
+        }
+    }
+    let mut v: Vec<_> = total.into_iter().collect();
+    v.sort_by(|a, b| b.1.0.cmp(&a.1.0).then(a.0.cmp(&b.0)));
+    v.into_iter()
+        .map(|(bone, (edges, drapes))| serde_json::json!({"bone": bone, "edges": edges, "drapes": drapes}))
+        .collect()
 }
 
 /// An f32 as its shortest decimal reads (0.3, not the 0.30000001192092896 a cast to f64

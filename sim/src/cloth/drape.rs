@@ -445,26 +445,48 @@ pub fn penetration(body: &BodyCollider, x: &[Vec3]) -> PenetrationStats {
     )
 }
 
+/// An edge of the cloth that passes through the body (see [`edges_through_body`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeThrough {
+    /// Index into the edge list.
+    pub edge: usize,
+    /// Depth of its deepest sample point inside the body (m).
+    pub depth: f32,
+    /// Body triangle nearest to that point (`None` when it is deeper than the 5 cm search
+    /// and found by ray parity).
+    pub tri: Option<u32>,
+}
+
 /// Edges of the cloth that pass through the body: a point at a quarter, half or three
 /// quarters along lies deeper than `tolerance` inside it, while the ends may both be
 /// outside (cloth caught on both sides of a limb, which the particle checks do not see).
+/// In edge order, each with its deepest point's depth and body triangle.
 pub fn edges_through_body(
     body: &BodyCollider,
     edges: &[[u32; 2]],
     x: &[Vec3],
     tolerance: f32,
-) -> usize {
+) -> Vec<EdgeThrough> {
     edges
         .iter()
-        .filter(|[a, b]| {
+        .enumerate()
+        .filter_map(|(edge, [a, b])| {
             let (p, q) = (x[*a as usize], x[*b as usize]);
-            [0.25f32, 0.5, 0.75].iter().any(|t| {
-                let m = p.lerp(q, *t);
-                depth(body, m, body.closest(m, VERIFY_RADIUS).as_ref())
-                    .is_some_and(|d| d > tolerance)
-            })
+            [0.25f32, 0.5, 0.75]
+                .iter()
+                .filter_map(|t| {
+                    let m = p.lerp(q, *t);
+                    let hit = body.closest(m, VERIFY_RADIUS);
+                    depth(body, m, hit.as_ref()).map(|depth| EdgeThrough {
+                        edge,
+                        depth,
+                        tri: hit.map(|h| h.contact.tri),
+                    })
+                })
+                .filter(|e| e.depth > tolerance)
+                .max_by(|a, b| a.depth.total_cmp(&b.depth))
         })
-        .count()
+        .collect()
 }
 
 /// How deep `p` is inside the body (`None` outside), given its nearest surface point within
@@ -784,11 +806,16 @@ mod tests {
         );
         // Across the limb: through it. Above it, and from the top down to touching: not.
         let edges = [[0, 1], [2, 3], [4, 2]];
-        assert_eq!(edges_through_body(&body, &edges[..1], &x, 0.001), 1);
-        assert_eq!(edges_through_body(&body, &edges[1..], &x, 0.001), 0);
-        assert_eq!(edges_through_body(&body, &edges, &x, 0.001), 1);
+        assert_eq!(edges_through_body(&body, &edges[..1], &x, 0.001).len(), 1);
+        assert_eq!(edges_through_body(&body, &edges[1..], &x, 0.001).len(), 0);
+        let through = edges_through_body(&body, &edges, &x, 0.001);
+        assert_eq!(through.len(), 1);
+        // Its deepest point is the middle: the sphere's centre, 2 cm deep.
+        assert_eq!(through[0].edge, 0);
+        assert!((through[0].depth - 0.02).abs() < 1e-3, "{:?}", through[0]);
+        assert!(through[0].tri.is_some());
         // A tolerance deeper than the limb's half thickness finds nothing.
-        assert_eq!(edges_through_body(&body, &edges, &x, 0.03), 0);
+        assert_eq!(edges_through_body(&body, &edges, &x, 0.03).len(), 0);
     }
 
     #[test]
