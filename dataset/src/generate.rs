@@ -175,7 +175,7 @@ impl<'a> Job<'a> {
             start.reference,
             drawn.shape,
             drawn.pose.clone(),
-            c.sim.morph_frames,
+            &c.sim,
         )?;
         // One thread per drape: threads go across drapes, and the bits do not depend on it.
         let mut d = drape::drape(

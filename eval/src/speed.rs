@@ -295,14 +295,8 @@ impl<'w> Redraper<'w> {
         start: &Start<'_>,
     ) -> Result<BodyMorph<'m>, EvalError> {
         let (shape, pose) = row_body(row);
-        BodyMorph::new(
-            model,
-            start.reference,
-            shape,
-            pose,
-            self.config.sim.morph_frames,
-        )
-        .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))
+        BodyMorph::new(model, start.reference, shape, pose, &self.config.sim)
+            .map_err(|e| EvalError::Invalid(format!("sample {}: {e}", row.id)))
     }
 }
 

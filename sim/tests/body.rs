@@ -390,3 +390,58 @@ fn girths_are_a_tailors_and_grow_with_weight() {
         "{heavy:?} vs {g:?}"
     );
 }
+
+#[test]
+fn the_morph_slows_down_so_no_body_vertex_outruns_the_speed_limit() {
+    use sim::cloth::SimConfig;
+    use sim::cloth::drape::{BodyMorph, BodyMotion};
+    let m = model();
+    // Both arms raised from the A-pose to above the head (the pose library's limits).
+    let raised = Pose::from_euler_map(
+        &m.skeleton,
+        &[
+            ("LeftArm".to_string(), [0.0, 0.0, 115.0]),
+            ("RightArm".to_string(), [0.0, 0.0, -115.0]),
+        ]
+        .into(),
+    )
+    .unwrap();
+    let config = SimConfig::default();
+    // The fastest vertex's straight distance from the first frame to the last.
+    let fastest = |morph: &BodyMorph<'_>| {
+        let (a, b) = (morph.at(0), morph.at(morph.frames()));
+        a.iter()
+            .zip(&b)
+            .map(|(p, q)| p.distance(*q))
+            .fold(0.0f32, f32::max)
+    };
+    let speed = |morph: &BodyMorph<'_>| fastest(morph) * config.fps / morph.frames() as f32;
+    // The hands travel about 0.9 m: faster than 0.6 m/s in 60 frames, so the morph takes
+    // the fewest frames that keep them at 0.6 m/s.
+    let morph = BodyMorph::new(
+        m,
+        ShapeParams::default(),
+        ShapeParams::default(),
+        raised,
+        &config,
+    )
+    .unwrap();
+    assert!(fastest(&morph) > 0.8, "{}", fastest(&morph));
+    assert!(morph.frames() > config.morph_frames, "{}", morph.frames());
+    assert!(
+        speed(&morph) <= config.max_morph_speed + 1e-4,
+        "{}",
+        speed(&morph)
+    );
+    let one_less = fastest(&morph) * config.fps / (morph.frames() - 1) as f32;
+    assert!(one_less > config.max_morph_speed, "{one_less}");
+    // A gentle morph (the rest pose, a slightly heavier body) keeps `morph_frames`.
+    let heavier = ShapeParams {
+        weight: 0.55,
+        ..ShapeParams::default()
+    };
+    let rest = Pose::rest(m.skeleton.len());
+    let morph = BodyMorph::new(m, ShapeParams::default(), heavier, rest, &config).unwrap();
+    assert_eq!(morph.frames(), config.morph_frames);
+    assert!(speed(&morph) < config.max_morph_speed);
+}

@@ -637,3 +637,53 @@ fn a_cloth_outrunning_the_speed_limit_is_an_explosion() {
         other => panic!("expected an explosion, got {other:?}"),
     }
 }
+
+#[test]
+fn a_cloth_caught_across_a_limb_fails_the_drape_and_a_shallow_chord_does_not() {
+    // A pinned square of cloth, two triangles 7 cm across, over a 4 cm limb (a sphere
+    // here): every particle outside it. Through its middle the diagonal passes 2 cm deep
+    // (caught across it); 1.8 cm off-centre, 2 mm deep (a chord, below the 5 mm limit).
+    let config = SimConfig::default();
+    let cloth = primitives::grid(
+        Vec3::new(-0.035, 0.0, -0.035),
+        Vec3::X * 0.07,
+        Vec3::Z * 0.07,
+        1,
+        1,
+    );
+    let model = ClothModel::new(&cloth, &config, &[0, 1, 2, 3]).unwrap();
+    for (centre_y, caught, depth) in [(0.0, true, 0.02), (0.018, false, 0.002)] {
+        let s = primitives::uv_sphere(Vec3::new(0.0, centre_y, 0.0), 0.02, 48, 24);
+        let body = StaticBody {
+            vertices: s.vertices,
+            triangles: s.triangles,
+        };
+        let d = drape::drape(&model, &cloth.vertices, &body, &config, false, &mut |_| {});
+        let r = &d.report;
+        assert_eq!(r.penetration.count, 0);
+        assert_eq!(r.edges_through_body.count, 1, "{centre_y}: {r:?}");
+        assert!(
+            (r.edges_through_body.max_depth - depth).abs() < 5e-4,
+            "{centre_y}: {}",
+            r.edges_through_body.max_depth
+        );
+        if caught {
+            assert!(
+                matches!(
+                    r.failure,
+                    Some(drape::Failure::CaughtOnBody { count: 1, .. })
+                ),
+                "{:?}",
+                r.failure
+            );
+            assert!(
+                r.failure
+                    .unwrap()
+                    .to_string()
+                    .contains("caught on the body")
+            );
+        } else {
+            assert!(r.converged, "{:?}", r.failure);
+        }
+    }
+}

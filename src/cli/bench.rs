@@ -419,12 +419,13 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let [stretch, shear, bend] = cloth.kind_counts();
     println!(
-        "{garment}: {} particles, {} triangles, constraints stretch/shear/bend {stretch}/{shear}/{bend}, {} colours; {}, morph {} frames",
+        "{garment}: {} particles, {} triangles, constraints stretch/shear/bend {stretch}/{shear}/{bend}, {} colours; {}, morph {} frames or more (body vertices at {} m/s at most)",
         cloth.len(),
         tube.triangles.len(),
         cloth.distance_colours.len(),
         config.stepping(),
-        config.morph_frames
+        config.morph_frames,
+        config.max_morph_speed
     );
     println!(
         "pose                 family    frames  1 thread  {cores} threads  converged  strain p95  max    inside before/after push-out"
@@ -438,7 +439,7 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             ShapeParams::default(),
             ShapeParams::default(),
             sampled.pose.clone(),
-            config.morph_frames,
+            &config,
         )?;
         let mut time = [0.0f64; 2];
         let mut last = None;

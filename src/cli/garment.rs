@@ -628,8 +628,13 @@ fn check(
             // Edges through the body with both ends outside it (1 mm deep or more).
             let collider =
                 sim::cloth::BodyCollider::new(&posed.vertices, &model.triangles, config.margin);
-            let through =
-                sim::cloth::drape::edges_through_body(&collider, &cloth.edges, &d.positions, 0.001);
+            let through = sim::cloth::drape::edges_through_body(
+                &collider,
+                &cloth.edges,
+                &d.positions,
+                config.max_penetration,
+                false,
+            );
             // Where they cross: the bone that weighs most on the body triangle nearest to
             // each edge's deepest point.
             let mut by_bone = std::collections::BTreeMap::<String, usize>::new();
@@ -990,13 +995,8 @@ pub fn drape_from_reference(
     config: &sim::cloth::SimConfig,
     parallel: bool,
 ) -> anyhow::Result<sim::cloth::DrapeResult> {
-    let motion = sim::cloth::drape::BodyMorph::new(
-        model,
-        t.reference(),
-        shape,
-        pose.clone(),
-        config.morph_frames,
-    )?;
+    let motion =
+        sim::cloth::drape::BodyMorph::new(model, t.reference(), shape, pose.clone(), config)?;
     Ok(sim::cloth::drape::drape(
         cloth,
         &t.mesh.vertices,

@@ -115,9 +115,9 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
         start.reference,
         drawn.shape,
         drawn.pose.clone(),
-        dc.sim.morph_frames,
+        &dc.sim,
     )?;
-    let bar = learn::run::progress(true, (dc.sim.morph_frames + dc.sim.max_frames) as u64);
+    let bar = learn::run::progress(true, (motion.frames + dc.sim.max_frames) as u64);
     bar.set_message("simulator");
     let mut sim_result = drape::drape(
         start.cloth,

@@ -108,7 +108,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
                 ShapeParams::default(),
                 params,
                 resolved.pose.clone(),
-                config.morph_frames,
+                &config,
             )?;
             (mesh.vertices.clone(), &morph)
         }
@@ -136,7 +136,7 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.unwrap_or(0))
         .build()?;
-    let bar = indicatif::ProgressBar::new(config.morph_frames as u64 + config.max_frames as u64)
+    let bar = indicatif::ProgressBar::new(motion.frames() as u64 + config.max_frames as u64)
         .with_style(
             indicatif::ProgressStyle::with_template(
                 "{prefix} [{bar:30}] frame {pos} {msg} ({elapsed})",

@@ -77,8 +77,12 @@ pub struct SimConfig {
     pub self_collision: bool,
     /// Smallest distance between cloth particles with self-collision (m, default 0.004).
     pub self_distance: f32,
-    /// Frames over which the body morphs from canonical to target (default 60).
+    /// Frames over which the body morphs from canonical to target, at least (default 60).
     pub morph_frames: u32,
+    /// Average speed (the straight distance over the morph's duration) that no body vertex
+    /// exceeds in the morph: a morph that `morph_frames` would make faster gets more frames
+    /// (m/s, default 0.6).
+    pub max_morph_speed: f32,
     /// Largest per-frame displacement counted as at rest (m, default 0.0005).
     pub rest_displacement: f32,
     /// Consecutive frames at rest that end a drape (default 10).
@@ -88,6 +92,9 @@ pub struct SimConfig {
     /// Vertices deeper than this inside the body after the final push-out fail the drape
     /// (m, default 0.001).
     pub max_penetration: f32,
+    /// Edges through the body (both ends outside it, a point along it inside) deeper than
+    /// this fail the drape: the cloth is caught across a limb (m, default 0.005).
+    pub max_edge_penetration: f32,
     /// Largest share of particles the final push-out may move out of the body (deeper than
     /// `max_penetration`) before the drape counts as failed (default 0.01).
     pub max_pushout_share: f32,
@@ -117,10 +124,12 @@ impl Default for SimConfig {
             self_collision: false,
             self_distance: 0.004,
             morph_frames: 60,
+            max_morph_speed: 0.6,
             rest_displacement: 0.0005,
             rest_frames: 10,
             max_frames: 600,
             max_penetration: 0.001,
+            max_edge_penetration: 0.005,
             max_pushout_share: 0.01,
         }
     }
@@ -201,10 +210,12 @@ impl SimConfig {
         let positive = [
             ("fps", self.fps),
             ("max_velocity", self.max_velocity),
+            ("max_morph_speed", self.max_morph_speed),
             ("density", self.density),
             ("thickness", self.thickness),
             ("rest_displacement", self.rest_displacement),
             ("max_penetration", self.max_penetration),
+            ("max_edge_penetration", self.max_edge_penetration),
             ("self_distance", self.self_distance),
         ];
         for (name, v) in positive {
