@@ -12,4 +12,4 @@ if ! python3 -c "import numpy, safetensors, OpenEXR" 2>/dev/null; then
 fi
 python3 -c "import numpy, safetensors, OpenEXR; print('python: numpy', numpy.__version__, 'safetensors', safetensors.__version__, 'OpenEXR', OpenEXR.__version__)"
 if cargo fmt --version >/dev/null 2>&1; then cargo fmt --all -- --check; fi
-cargo test --workspace --release
+cargo test --workspace --release --no-fail-fast
