@@ -92,8 +92,9 @@ pub struct SimConfig {
     /// Vertices deeper than this inside the body after the final push-out fail the drape
     /// (m, default 0.001).
     pub max_penetration: f32,
-    /// Edges through the body (both ends outside it, a point along it inside) deeper than
-    /// this fail the drape: the cloth is caught across a limb (m, default 0.005).
+    /// An edge through the body (both ends outside it, a point along it inside) deeper
+    /// than this and than a quarter of its length inside the body fails the drape: the
+    /// cloth is caught across a limb (m, default 0.005).
     pub max_edge_penetration: f32,
     /// Largest share of particles the final push-out may move out of the body (deeper than
     /// `max_penetration`) before the drape counts as failed (default 0.01).
