@@ -1,4 +1,6 @@
 //! Helpers shared by the integration tests that run the `drape` program.
+// Each test binary compiles this module and uses a part of it.
+#![allow(dead_code)]
 
 use std::process::Command;
 
