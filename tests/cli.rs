@@ -707,6 +707,16 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
             d["edges_through_body"].is_u64() && d["edges_doubled"].is_u64(),
             "{d}"
         );
+        // Broken down by body bone (the counts add up), with the deepest.
+        let by_bone: u64 = d["edges_through_body_by_bone"]
+            .as_object()
+            .unwrap()
+            .values()
+            .map(|n| n.as_u64().unwrap())
+            .sum();
+        assert_eq!(by_bone, d["edges_through_body"].as_u64().unwrap(), "{d}");
+        let deepest = d["edges_through_body_deepest_mm"].as_f64().unwrap();
+        assert_eq!(deepest > 1.0, by_bone > 0, "{d}");
     }
     assert!(String::from_utf8_lossy(&o.stdout).contains("edges through the body"));
     let (slid, held) = (&r["drapes"][0], &r["drapes"][1]);

@@ -196,15 +196,30 @@ impl Manifest {
 
     /// The config back. A simulator config written before `stretch_iterations` existed
     /// ran one stretch sweep per substep, so a manifest without the field reads as 1, not
-    /// as today's default.
+    /// as today's default. One written before session 15 had no paced morph and no check
+    /// for cloth caught on the body: without `max_morph_speed` and `max_edge_penetration`
+    /// both read as off (1e9). Its morph then keeps `morph_frames`, but blends the two
+    /// shaped bodies where the old one blended shape parameters: a redrape of such a
+    /// dataset ([`Self::before_paced_morph`]) is today's protocol on its samples.
     pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
         let mut config = self.config.clone();
         if let Some(sim) = config.get_mut("sim").and_then(|s| s.as_object_mut()) {
             sim.entry("stretch_iterations")
                 .or_insert(serde_json::Value::from(1));
+            for off in ["max_morph_speed", "max_edge_penetration"] {
+                sim.entry(off).or_insert(serde_json::Value::from(1e9));
+            }
         }
         serde_json::from_value(config)
             .map_err(|e| crate::DatasetError::Invalid(format!("manifest config: {e}")))
+    }
+
+    /// True for a dataset made before the paced morph of session 15 (its simulator config
+    /// has no `max_morph_speed`).
+    pub fn before_paced_morph(&self) -> bool {
+        self.config
+            .get("sim")
+            .is_some_and(|s| s.get("max_morph_speed").is_none())
     }
 
     /// Every sample, in shard order.
@@ -283,13 +298,23 @@ mod tests {
         .unwrap();
         let mut m = Manifest::new(&config, GenOptions::default(), String::new(), Vec::new());
         assert_eq!(m.dataset_config().unwrap().sim.stretch_iterations, 3);
-        // As written by earlier versions: no such field.
-        m.config["sim"]
-            .as_object_mut()
-            .unwrap()
-            .remove("stretch_iterations");
+        assert!(!m.before_paced_morph());
+        assert_eq!(m.dataset_config().unwrap().sim.max_morph_speed, 0.6);
+        // As written by earlier versions: no such fields.
+        let sim = m.config["sim"].as_object_mut().unwrap();
+        for old in [
+            "stretch_iterations",
+            "max_morph_speed",
+            "max_edge_penetration",
+        ] {
+            sim.remove(old);
+        }
         let back = m.dataset_config().unwrap();
         assert_eq!(back.sim.stretch_iterations, 1);
+        // Nor the paced morph and the check for cloth caught on the body: both read as off.
+        assert!(m.before_paced_morph());
+        assert_eq!(back.sim.max_morph_speed, 1e9);
+        assert_eq!(back.sim.max_edge_penetration, 1e9);
         assert_eq!(back.sim.substeps, config.sim.substeps);
     }
 

@@ -214,6 +214,13 @@ impl<'w> Redraper<'w> {
     /// with, or if it has sizes and the dataset does not (or the other way round).
     pub fn new(data: &Dataset, wardrobe: &'w Wardrobe) -> Result<Self, EvalError> {
         let config = data.manifest.dataset_config()?;
+        if data.manifest.before_paced_morph() {
+            eprintln!(
+                "note: {} was made before the paced morph (session 15); its drapes are redraped with today's morph over its {} frames, which blends the shaped bodies instead of their shape parameters",
+                data.dir.display(),
+                config.sim.morph_frames
+            );
+        }
         let ours = &wardrobe.base.mesh.vertices;
         let theirs = &data.statics.garment_vertices;
         let drift = ours

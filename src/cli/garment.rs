@@ -625,7 +625,9 @@ fn check(
             }
             let mut d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
             d.judge_slide(&top, &warp);
-            // Edges through the body with both ends outside it (1 mm deep or more).
+            // Edges through the body with both ends outside it (deeper than the config's
+            // max_penetration, 1 mm): the drape's report counts them too; here each also
+            // gets the body bone where it crosses.
             let collider =
                 sim::cloth::BodyCollider::new(&posed.vertices, &model.triangles, config.margin);
             let through = sim::cloth::drape::edges_through_body(

@@ -235,6 +235,12 @@ impl SimConfig {
             ("max_pushout_share", self.max_pushout_share),
             ("stretch_limit", self.stretch_limit),
         ];
+        if self.max_morph_speed < 0.05 {
+            return Err(format!(
+                "max_morph_speed = {} must be 0.05 m/s or more (slower morphs take thousands of frames)",
+                self.max_morph_speed
+            ));
+        }
         for (name, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} = {v} must be zero or positive"));

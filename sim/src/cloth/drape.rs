@@ -3,8 +3,8 @@
 //! **Morph and settle** (the paper's PBS): the garment starts as its template on the
 //! canonical body in the rest pose; the body morphs to the target shape and pose over
 //! `morph_frames` frames, or more where a body vertex would otherwise move faster than
-//! `max_morph_speed` on average (shape parameters blended linearly, bones slerped from
-//! rest);
+//! `max_morph_speed` on average (the two shaped bodies blended linearly, bones slerped
+//! from rest);
 //! then the body holds still and the cloth runs until it is at rest (the largest per-frame
 //! displacement below `rest_displacement` for `rest_frames` consecutive frames, at most
 //! `max_frames` frames); a final pass pushes out particles left inside the body and
@@ -99,7 +99,8 @@ pub struct BodyMorph<'a> {
     pub to: ShapeParams,
     /// Target pose.
     pub pose: Pose,
-    /// Frames of the morph ([`BodyMorph::new`] paces it).
+    /// Frames of the morph ([`BodyMorph::new`] paces it). This and the fields above record
+    /// what `new` was given; the motion comes from the shapes it made then.
     pub frames: u32,
     /// The starting and the target shape in the rest pose, made once.
     shaped: [ShapedBody<'a>; 2],
@@ -273,7 +274,7 @@ impl std::fmt::Display for Failure {
             ),
             Failure::CaughtOnBody { count, max_depth } => write!(
                 f,
-                "caught on the body: {count} edges pass through it across its width with both ends outside (deepest {:.1} mm)",
+                "caught on the body ({count} edges through a part of it with both ends outside, deepest {:.1} mm)",
                 max_depth * 1e3
             ),
             Failure::SlidDown { drop } => write!(
@@ -894,6 +895,7 @@ mod tests {
             0
         );
         let through = edges_through_body(&body, &edges, &x, 0.001, false);
+        assert_eq!(through, edges_through_body(&body, &edges, &x, 0.001, true));
         assert_eq!(through.len(), 1);
         // Its deepest point is the middle: the sphere's centre, 2 cm deep.
         assert_eq!(through[0].edge, 0);
