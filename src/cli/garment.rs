@@ -625,29 +625,15 @@ fn check(
             }
             let mut d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
             d.judge_slide(&top, &warp);
-            // Edges through the body with both ends outside it (deeper than the config's
-            // max_penetration, 1 mm): the drape's report counts them too; here each also
-            // gets the body bone where it crosses.
-            let collider =
-                sim::cloth::BodyCollider::new(&posed.vertices, &model.triangles, config.margin);
-            let through = sim::cloth::drape::edges_through_body(
-                &collider,
-                &cloth.edges,
-                &d.positions,
-                config.max_penetration,
-                false,
-            );
-            // Where they cross: the bone that weighs most on the body triangle nearest to
-            // each edge's deepest point.
+            // Where the verification's edges through the body cross it: the bone that
+            // weighs most on the body triangle nearest to each edge's deepest point.
             let mut by_bone = std::collections::BTreeMap::<String, usize>::new();
-            for e in &through {
+            for e in &d.edges_through_body {
                 let bone = e.tri.map_or("(deeper than 5 cm)".to_string(), |tri| {
                     dominant_bone(&model, model.triangles[tri as usize][0])
                 });
                 *by_bone.entry(bone).or_default() += 1;
             }
-            let through_deepest_mm = through.iter().map(|e| e.depth).fold(0.0, f32::max) * 1e3;
-            let through = through.len();
             bar.inc(1);
             let r = &d.report;
             Ok(serde_json::json!({
@@ -662,9 +648,9 @@ fn check(
                 "strain_max": r.strain.max,
                 "inside_after": r.penetration.count,
                 "deepest_mm": r.penetration.max_depth * 1e3,
-                "edges_through_body": through,
+                "edges_through_body": r.edges_through_body.count,
                 "edges_through_body_by_bone": by_bone,
-                "edges_through_body_deepest_mm": through_deepest_mm,
+                "edges_through_body_deepest_mm": r.edges_through_body.max_depth * 1e3,
                 "edges_doubled": r.strain.doubled,
                 "top_drop_cm": r.top_drop.map(|x| x * 100.0),
                 "warp_edges_over_30pct": warp_over,

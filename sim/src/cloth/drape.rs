@@ -93,16 +93,12 @@ impl<F: Fn(u32) -> Vec<Vec3>> BodyMotion for FnMotion<F> {
 pub struct BodyMorph<'a> {
     /// The body model.
     pub model: &'a BodyModel,
-    /// Starting shape (the canonical body: the defaults).
-    pub from: ShapeParams,
-    /// Target shape.
-    pub to: ShapeParams,
     /// Target pose.
     pub pose: Pose,
-    /// Frames of the morph ([`BodyMorph::new`] paces it). This and the fields above record
-    /// what `new` was given; the motion comes from the shapes it made then.
+    /// Frames of the morph ([`BodyMorph::new`] paces it).
     pub frames: u32,
-    /// The starting and the target shape in the rest pose, made once.
+    /// The starting shape (the canonical body, or a size's reference) and the target
+    /// shape in the rest pose, made once.
     shaped: [ShapedBody<'a>; 2],
 }
 
@@ -129,8 +125,6 @@ impl BodyMorph<'_> {
         let shaped = [model.shape(&from)?, model.shape(&to)?];
         let mut morph = BodyMorph {
             model,
-            from,
-            to,
             pose,
             frames: 1,
             shaped,
@@ -391,6 +385,9 @@ pub struct DrapeResult {
     pub positions: Vec<Vec3>,
     /// Quality and timing.
     pub report: DrapeReport,
+    /// The edges through the body that the verification found (the report counts them),
+    /// each with its depth and body triangle.
+    pub edges_through_body: Vec<EdgeThrough>,
 }
 
 impl DrapeResult {
@@ -752,7 +749,7 @@ pub fn drape(
         })
         .map(|e| e.depth)
         .collect();
-    let through = penetration_stats(through.iter().map(|e| e.depth));
+    let through_stats = penetration_stats(through.iter().map(|e| e.depth));
     let verify_time = t.elapsed().as_secs_f64();
     if failure.is_none() && after.count > 0 && after.max_depth > config.max_penetration {
         failure = Some(Failure::PenetrationsLeft {
@@ -793,7 +790,7 @@ pub fn drape(
         strain: strain(model, &x),
         penetration_before_pushout: before,
         penetration: after,
-        edges_through_body: through,
+        edges_through_body: through_stats,
         kinetic_energy: last.1,
         last_displacement: last.0,
         top_drop: None,
@@ -801,6 +798,7 @@ pub fn drape(
     DrapeResult {
         positions: x,
         report,
+        edges_through_body: through,
     }
 }
 
