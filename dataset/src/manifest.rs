@@ -200,7 +200,10 @@ impl Manifest {
     /// for cloth caught on the body: without `max_morph_speed` and `max_edge_penetration`
     /// both read as off (1e9). Its morph then keeps `morph_frames`, but blends the two
     /// shaped bodies where the old one blended shape parameters: a redrape of such a
-    /// dataset ([`Self::before_paced_morph`]) is today's protocol on its samples.
+    /// dataset ([`Self::before_paced_morph`]) is today's protocol on its samples. One
+    /// written before session 16 settled at its `substeps`: without `settle_substeps` it
+    /// reads as those; its redrapes push particles out inelastically, as today's
+    /// simulator does ([`Self::before_settle_substeps`]).
     pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
         let mut config = self.config.clone();
         if let Some(sim) = config.get_mut("sim").and_then(|s| s.as_object_mut()) {
@@ -208,6 +211,9 @@ impl Manifest {
                 .or_insert(serde_json::Value::from(1));
             for off in ["max_morph_speed", "max_edge_penetration"] {
                 sim.entry(off).or_insert(serde_json::Value::from(1e9));
+            }
+            if let Some(substeps) = sim.get("substeps").cloned() {
+                sim.entry("settle_substeps").or_insert(substeps);
             }
         }
         serde_json::from_value(config)
@@ -220,6 +226,14 @@ impl Manifest {
         self.config
             .get("sim")
             .is_some_and(|s| s.get("max_morph_speed").is_none())
+    }
+
+    /// True for a dataset made before session 16 (its simulator config has no
+    /// `settle_substeps`): it settled at its morph's substeps, with elastic push-outs.
+    pub fn before_settle_substeps(&self) -> bool {
+        self.config
+            .get("sim")
+            .is_some_and(|s| s.get("settle_substeps").is_none())
     }
 
     /// Every sample, in shard order.
@@ -302,10 +316,13 @@ mod tests {
         assert_eq!(m.dataset_config().unwrap().sim.max_morph_speed, 0.6);
         // As written by earlier versions: no such fields.
         let sim = m.config["sim"].as_object_mut().unwrap();
+        assert!(!m.before_settle_substeps());
+        assert_eq!(m.dataset_config().unwrap().sim.settle_substeps, 20);
         for old in [
             "stretch_iterations",
             "max_morph_speed",
             "max_edge_penetration",
+            "settle_substeps",
         ] {
             sim.remove(old);
         }
@@ -316,6 +333,9 @@ mod tests {
         assert_eq!(back.sim.max_morph_speed, 1e9);
         assert_eq!(back.sim.max_edge_penetration, 1e9);
         assert_eq!(back.sim.substeps, config.sim.substeps);
+        // It settled at its substeps.
+        assert!(m.before_settle_substeps());
+        assert_eq!(back.sim.settle_substeps, config.sim.substeps);
     }
 
     #[test]

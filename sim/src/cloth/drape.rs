@@ -5,7 +5,8 @@
 //! `morph_frames` frames, or more where a body vertex would otherwise move faster than
 //! `max_morph_speed` on average (the two shaped bodies blended linearly, bones slerped
 //! from rest);
-//! then the body holds still and the cloth runs until it is at rest (the largest per-frame
+//! then the body holds still and the cloth runs, at `settle_substeps` substeps a frame
+//! (finer than the morph's: less sag in the rest state), until it is at rest (the largest per-frame
 //! displacement below `rest_displacement` for `rest_frames` consecutive frames, at most
 //! `max_frames` frames); a final pass pushes out particles left inside the body and
 //! measures what remains.
@@ -696,6 +697,8 @@ pub fn drape(
     let mut settle = 0u32;
     if failure.is_none() {
         body.hold();
+        // The body stands still from here on: the rest state's sag falls with the substep.
+        solver.set_substeps(config.settle_substeps);
         let mut calm = 0u32;
         while settle < config.max_frames && calm < config.rest_frames {
             settle += 1;
