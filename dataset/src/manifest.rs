@@ -314,10 +314,10 @@ mod tests {
         assert_eq!(m.dataset_config().unwrap().sim.stretch_iterations, 3);
         assert!(!m.before_paced_morph());
         assert_eq!(m.dataset_config().unwrap().sim.max_morph_speed, 0.6);
-        // As written by earlier versions: no such fields.
-        let sim = m.config["sim"].as_object_mut().unwrap();
         assert!(!m.before_settle_substeps());
         assert_eq!(m.dataset_config().unwrap().sim.settle_substeps, 20);
+        // As written by earlier versions: no such fields.
+        let sim = m.config["sim"].as_object_mut().unwrap();
         for old in [
             "stretch_iterations",
             "max_morph_speed",

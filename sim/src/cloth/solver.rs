@@ -374,7 +374,8 @@ impl<'m> Solver<'m> {
 
     /// Pushes this frame's contact particles out to `thickness` along the contact normal at
     /// time `te` of the frame, then removes tangential motion relative to the body up to
-    /// `friction` times the push (static) or by that much (kinetic). The push is inelastic:
+    /// `friction` times the push (static) or by that much (kinetic). The push is inelastic
+    /// unless `elastic_pushout` is set:
     /// a particle that started the substep inside the thickness leaves it with the body's
     /// normal speed, not with the push over `h` on top. Without that, a few particles
     /// pressed into a crease or between a hand and a thigh bounced in a limit cycle (0.4 to
@@ -387,6 +388,7 @@ impl<'m> Solver<'m> {
     /// every substep, positions' cache lines moving between cores).
     fn collide(&mut self, tb: f32, te: f32) {
         let (thickness, mu) = (self.config.thickness, self.model.friction);
+        let elastic = self.config.elastic_pushout;
         for (i, p) in &self.active {
             let i = *i as usize;
             let x = &mut self.x[i];
@@ -403,7 +405,7 @@ impl<'m> Solver<'m> {
             // update would give it, as if it had begun the substep on the surface.
             let xb = &mut self.x_before[i];
             let db = (*xb - p.q0.lerp(p.q1, tb)).dot(n);
-            if db < thickness {
+            if db < thickness && !elastic {
                 *xb += n * (thickness - db);
             }
             // Friction against the body's motion over this substep.

@@ -343,6 +343,11 @@ pub fn settle(
     };
     let relax_config = SimConfig {
         substeps: config.substeps.max(RELAX_SUBSTEPS),
+        // The body stands still: the whole relaxation runs at the settling's substeps.
+        settle_substeps: config.substeps.max(RELAX_SUBSTEPS),
+        // The push-out the templates were relaxed with (an inelastic one left the 10k jeans
+        // jittering at 0.5 to 0.6 mm a frame: `SimConfig::elastic_pushout`).
+        elastic_pushout: true,
         shear_bend_substeps: None,
         // The templates were relaxed with one stretch sweep per substep; their 30 substeps
         // already remove the sag.
