@@ -27,10 +27,10 @@ for seed in 9 11; do
 done
 
 # Strain maps of the 10k T-shirt in random:9 (docs/sim.md): one stretch sweep per substep
-# and five, both settling at the morph's 10 substeps as before session 16; then the default
-# (five sweeps, settling at 20 substeps).
-printf 'stretch_iterations = 1\nsettle_substeps = 10\n' > "$tmp/one-sweep.toml"
-printf 'settle_substeps = 10\n' > "$tmp/settle-10.toml"
+# and five, both settling at the morph's 10 substeps with the elastic push-out, as before
+# session 16; then the default (five sweeps, settling at 20 substeps, inelastic push-out).
+printf 'stretch_iterations = 1\nsettle_substeps = 10\nelastic_pushout = true\n' > "$tmp/one-sweep.toml"
+printf 'settle_substeps = 10\nelastic_pushout = true\n' > "$tmp/settle-10.toml"
 $drape sim --garment tshirt --pose random:9 --config "$tmp/one-sweep.toml" -o "$tmp/d.obj" --strain-png docs/sim/strain-tshirt-random-9.png
 $drape sim --garment tshirt --pose random:9 --config "$tmp/settle-10.toml" -o "$tmp/d.obj" --strain-png docs/sim/strain-tshirt-random-9-five-sweeps.png
 $drape sim --garment tshirt --pose random:9 -o "$tmp/d.obj" --strain-png docs/sim/strain-tshirt-random-9-settle-20.png

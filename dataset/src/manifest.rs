@@ -201,9 +201,9 @@ impl Manifest {
     /// both read as off (1e9). Its morph then keeps `morph_frames`, but blends the two
     /// shaped bodies where the old one blended shape parameters: a redrape of such a
     /// dataset ([`Self::before_paced_morph`]) is today's protocol on its samples. One
-    /// written before session 16 settled at its `substeps`: without `settle_substeps` it
-    /// reads as those; its redrapes push particles out inelastically, as today's
-    /// simulator does ([`Self::before_settle_substeps`]).
+    /// written before session 16 settled at its `substeps` with the elastic push-out:
+    /// without `settle_substeps` it reads as those, and `elastic_pushout` as true, so its
+    /// redrapes settle as it did.
     pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
         let mut config = self.config.clone();
         if let Some(sim) = config.get_mut("sim").and_then(|s| s.as_object_mut()) {
@@ -213,7 +213,12 @@ impl Manifest {
                 sim.entry(off).or_insert(serde_json::Value::from(1e9));
             }
             if let Some(substeps) = sim.get("substeps").cloned() {
-                sim.entry("settle_substeps").or_insert(substeps);
+                if !sim.contains_key("settle_substeps") {
+                    // Made before session 16: settling at its substeps, elastic push-outs.
+                    sim.insert("settle_substeps".into(), substeps);
+                    sim.entry("elastic_pushout")
+                        .or_insert(serde_json::Value::from(true));
+                }
             }
         }
         serde_json::from_value(config)
@@ -226,14 +231,6 @@ impl Manifest {
         self.config
             .get("sim")
             .is_some_and(|s| s.get("max_morph_speed").is_none())
-    }
-
-    /// True for a dataset made before session 16 (its simulator config has no
-    /// `settle_substeps`): it settled at its morph's substeps, with elastic push-outs.
-    pub fn before_settle_substeps(&self) -> bool {
-        self.config
-            .get("sim")
-            .is_some_and(|s| s.get("settle_substeps").is_none())
     }
 
     /// Every sample, in shard order.
@@ -314,8 +311,8 @@ mod tests {
         assert_eq!(m.dataset_config().unwrap().sim.stretch_iterations, 3);
         assert!(!m.before_paced_morph());
         assert_eq!(m.dataset_config().unwrap().sim.max_morph_speed, 0.6);
-        assert!(!m.before_settle_substeps());
         assert_eq!(m.dataset_config().unwrap().sim.settle_substeps, 20);
+        assert!(!m.dataset_config().unwrap().sim.elastic_pushout);
         // As written by earlier versions: no such fields.
         let sim = m.config["sim"].as_object_mut().unwrap();
         for old in [
@@ -333,9 +330,9 @@ mod tests {
         assert_eq!(back.sim.max_morph_speed, 1e9);
         assert_eq!(back.sim.max_edge_penetration, 1e9);
         assert_eq!(back.sim.substeps, config.sim.substeps);
-        // It settled at its substeps.
-        assert!(m.before_settle_substeps());
+        // It settled at its substeps, with the elastic push-out.
         assert_eq!(back.sim.settle_substeps, config.sim.substeps);
+        assert!(back.sim.elastic_pushout);
     }
 
     #[test]

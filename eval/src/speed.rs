@@ -221,13 +221,6 @@ impl<'w> Redraper<'w> {
                 config.sim.morph_frames
             );
         }
-        if data.manifest.before_settle_substeps() {
-            eprintln!(
-                "note: {} was made before session 16; its drapes are redraped settling at its {} substeps a frame, as it did, but with today's inelastic push-out",
-                data.dir.display(),
-                config.sim.settle_substeps
-            );
-        }
         let ours = &wardrobe.base.mesh.vertices;
         let theirs = &data.statics.garment_vertices;
         let drift = ours

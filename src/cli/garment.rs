@@ -738,6 +738,7 @@ fn check(
         "vertices": t.len(),
         "drapes": rows.len(),
         "substeps": config.substeps,
+        "settle_substeps": config.settle_substeps,
         "friction": f32_as_written(friction),
         "converged_share": converged as f64 / n,
         "deepest_mm": f("deepest_mm").into_iter().fold(0.0, f64::max),

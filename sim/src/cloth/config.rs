@@ -48,7 +48,8 @@ pub struct SimConfig {
     /// sweeps leave under gravity, about `g h^2` per substep to carry) falls with the
     /// square of the substep: p95 strain of the 10k T-shirt in the rest pose 3.7% at 10,
     /// 1.0% at 20, 0.3% at 40 (docs/sim.md, session 16). A manifest without the field
-    /// (written before it) reads as its `substeps` (`Manifest::dataset_config`).
+    /// (written before it) reads as its `substeps` (`Manifest::dataset_config`). Not tied
+    /// to `substeps`: a config raising `substeps` above it settles coarser than it morphs.
     pub settle_substeps: u32,
     /// The push-out out of the body also gives the particle the push over `h` as outward
     /// speed, as before session 16 (default false: inelastic, the particle leaves with the

@@ -108,7 +108,8 @@ pub struct FrameStats {
 pub struct Solver<'m> {
     /// The cloth.
     pub model: &'m ClothModel,
-    /// Parameters (fixed: the constraints are prepared for their substep length).
+    /// Parameters (the constraints are prepared for their substep length; `set_substeps`
+    /// changes it and prepares them again).
     config: SimConfig,
     /// Positions (m), 16-byte aligned for SIMD; [`Solver::positions`] gives them as `Vec3`.
     x: Vec<Vec3A>,
