@@ -49,6 +49,29 @@ fn every_garment_has_its_openings() {
 }
 
 #[test]
+fn the_dress_flares_to_its_hem() {
+    // The skirt's `flare` widens it towards the hem, away from the legs: the hem, the
+    // lowest opening, goes round the dress about 1.6 m (1.19 m without the flare), the
+    // widest of its openings by far.
+    let t = built().iter().find(|t| t.meta.name == "dress").unwrap();
+    let loops = remesh::boundary_loops(&t.mesh);
+    let x = |v: u32| t.mesh.vertices[v as usize];
+    let length = |l: &Vec<u32>| -> f32 {
+        (0..l.len())
+            .map(|k| x(l[k]).distance(x(l[(k + 1) % l.len()])))
+            .sum()
+    };
+    let mean_y = |l: &Vec<u32>| l.iter().map(|&v| x(v).y).sum::<f32>() / l.len() as f32;
+    let hem = loops
+        .iter()
+        .min_by(|a, b| mean_y(a).total_cmp(&mean_y(b)))
+        .unwrap();
+    let hem_length = length(hem);
+    eprintln!("dress hem {hem_length} m round");
+    assert!((1.5..1.8).contains(&hem_length), "hem {hem_length} m round");
+}
+
+#[test]
 fn the_top_opening_is_the_neckline_or_the_waistband() {
     for t in built() {
         let top = t.top_opening();

@@ -142,6 +142,16 @@ fn add_ease(mesh: &mut TriMesh, ease: f32) {
     }
 }
 
+/// Moves every vertex horizontally away from the vertical axis through `centre` by `flare`
+/// times its depth below the mesh's highest vertex.
+fn add_flare(mesh: &mut TriMesh, flare: f32, centre: Vec3) {
+    let top = mesh.vertices.iter().map(|p| p.y).fold(f32::MIN, f32::max);
+    for p in &mut mesh.vertices {
+        let out = Vec3::new(p.x - centre.x, 0.0, p.z - centre.z).normalize_or_zero();
+        *p += out * (flare * (top - p.y));
+    }
+}
+
 /// One part, cut and eased (steps 1 of the module docs).
 fn part(
     def: &super::def::PartDef,
@@ -174,6 +184,10 @@ fn part(
     }
     let mut mesh = cut::largest_piece(&mesh);
     add_ease(&mut mesh, def.ease);
+    if def.flare != 0.0 {
+        let (centre, _) = bone_ends("Hips", body)?;
+        add_flare(&mut mesh, def.flare, centre);
+    }
     Ok(mesh)
 }
 

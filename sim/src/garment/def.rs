@@ -106,6 +106,11 @@ pub struct PartDef {
     /// binds the part to those bones only (a skirt follows the hips, not either leg).
     #[serde(default)]
     pub bones: Option<Vec<String>>,
+    /// Flare (m of extra radius per m below the part's top, default 0): each vertex moves
+    /// away from the vertical axis through the Hips joint by this times its depth below
+    /// the part's highest vertex, after the ease, so a skirt widens towards its hem.
+    #[serde(default)]
+    pub flare: f32,
 }
 
 /// A plane placed on the skeleton of the canonical body.
