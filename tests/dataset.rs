@@ -706,29 +706,19 @@ fn bodies_wear_the_size_their_measurements_pick() {
     // size's); the sized samples' drapes are 2.8 and 3.0 cm from their base size's
     // (session 15: 0.004 to 0.10 cm; the settling's finer steps and the inelastic push-out
     // raise the floor: docs/eval.md).
+    let draped = |d: &Dataset, id: u64| {
+        d.samples(Split::Train)
+            .map(Result::unwrap)
+            .find(|x| x.row.id == id)
+            .unwrap()
+            .row
+            .draped
+    };
     let (mut within, mut sized) = (0, 0);
     for s in samples {
         let e = s["redrapes"][0]["edist_cm"].as_f64().unwrap();
         let id = s["id"].as_u64().unwrap();
-        let mine = ds
-            .samples(Split::Train)
-            .map(Result::unwrap)
-            .find(|x| x.row.id == id)
-            .unwrap();
-        let base = plain_ds
-            .samples(Split::Train)
-            .map(Result::unwrap)
-            .find(|x| x.row.id == id)
-            .unwrap();
-        let apart = 100.0
-            * mine
-                .row
-                .draped
-                .iter()
-                .zip(&base.row.draped)
-                .map(|(p, q)| p.distance(*q) as f64)
-                .sum::<f64>()
-            / mine.row.draped.len() as f64;
+        let apart = eval::metrics::edist_cm(&draped(&ds, id), &draped(&plain_ds, id));
         eprintln!("sample {id}: redraped {e:.3} cm away, {apart:.3} cm from its base-size drape");
         if apart > 0.3 {
             sized += 1;

@@ -401,16 +401,20 @@ impl<'m> Solver<'m> {
             }
             let push = thickness - d;
             *x += n * push;
-            // Inelastic: a particle that began the substep closer than `thickness` is
-            // moved out without gaining the outward speed `push / h` that the velocity
-            // update would give it, as if it had begun the substep on the surface.
+            // The contact point at the substep's start.
+            let qb = p.q0.lerp(p.q1, tb);
             let xb = &mut self.x_before[i];
-            let db = (*xb - p.q0.lerp(p.q1, tb)).dot(n);
-            if db < thickness && !elastic {
-                *xb += n * (thickness - db);
+            if !elastic {
+                // Inelastic: a particle that began the substep closer than `thickness` is
+                // moved out without gaining the outward speed `push / h` that the velocity
+                // update would give it, as if it had begun the substep on the surface.
+                let db = (*xb - qb).dot(n);
+                if db < thickness {
+                    *xb += n * (thickness - db);
+                }
             }
             // Friction against the body's motion over this substep.
-            let rel = (*x - self.x_before[i]) - (q - p.q0.lerp(p.q1, tb));
+            let rel = (*x - *xb) - (q - qb);
             let tangential = rel - n * rel.dot(n);
             let tl = tangential.length();
             if tl > 0.0 {

@@ -355,10 +355,11 @@ pub fn settle(
         vertices: body.vertices.clone(),
         triangles: body.model.triangles.clone(),
     };
+    let relax_substeps = config.substeps.max(RELAX_SUBSTEPS);
     let relax_config = SimConfig {
-        substeps: config.substeps.max(RELAX_SUBSTEPS),
+        substeps: relax_substeps,
         // The body stands still: the whole relaxation runs at the settling's substeps.
-        settle_substeps: config.substeps.max(RELAX_SUBSTEPS),
+        settle_substeps: relax_substeps,
         // The push-out the templates were relaxed with (an inelastic one left the 10k jeans
         // jittering at 0.5 to 0.6 mm a frame: `SimConfig::elastic_pushout`).
         elastic_pushout: true,
