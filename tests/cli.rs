@@ -508,6 +508,47 @@ fn garments_build_once_warp_and_drape_by_name() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(p("d.json")).unwrap()).unwrap();
     assert_eq!(report["converged"], true);
+
+    // The gallery: a row for the canonical body and one per sample, three pictures each;
+    // `--strain` colours the drapes by strain and adds the colour bar below.
+    let gallery = |png: &str, strain: bool| {
+        let mut args = vec![
+            "--assets",
+            a,
+            "garment",
+            "gallery",
+            "tshirt",
+            "--resolution",
+            "1000",
+            "--samples",
+            "1",
+            "--cell-height",
+            "120",
+            "-o",
+            png,
+        ];
+        if strain {
+            args.push("--strain");
+        }
+        let o = drape(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let text = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(text.contains("row 1: random:0"), "{text}");
+        let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(png).unwrap()));
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        (info.width, info.height, buf[..info.buffer_size()].to_vec())
+    };
+    let (plain, map) = (gallery(&p("g.png"), false), gallery(&p("gs.png"), true));
+    assert_eq!(plain.1, 240, "two rows of 120 pixels");
+    assert_eq!(map.0, plain.0);
+    assert!(map.1 > plain.1, "no colour bar under the strain gallery");
+    // The first row (template) is the same; the drape in the second is recoloured.
+    let row = 3 * plain.0 as usize * 120;
+    assert_eq!(map.2[..row], plain.2[..row]);
+    let changed = (row..2 * row).filter(|&i| map.2[i] != plain.2[i]).count();
+    assert!(changed > row / 100, "{changed} of {row} bytes recoloured");
 }
 
 #[test]

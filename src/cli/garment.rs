@@ -74,6 +74,10 @@ enum GarmentCommand {
         /// Height of each picture in pixels.
         #[arg(long, default_value_t = 300)]
         cell_height: u32,
+        /// Colour each drape by its strain (the largest `l / l0 - 1` of each vertex's edges,
+        /// 0 to 10%, as `drape sim --strain-png`) and add the colour bar.
+        #[arg(long)]
+        strain: bool,
         /// Output PNG.
         #[arg(short = 'o', long, value_name = "FILE.png")]
         output: PathBuf,
@@ -388,8 +392,20 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             samples,
             seed,
             cell_height,
+            strain,
             output,
-        } => gallery(ctx, &name, resolution, samples, seed, cell_height, &output),
+        } => gallery(
+            ctx,
+            &name,
+            resolution,
+            Rows {
+                samples,
+                seed,
+                cell_height,
+                strain,
+            },
+            &output,
+        ),
         GarmentCommand::Import {
             obj,
             name,
@@ -869,15 +885,28 @@ fn sample(
     )
 }
 
+/// What a gallery shows: how many sampled rows from which seed, at what size, and whether
+/// the drapes are coloured by strain.
+struct Rows {
+    samples: u64,
+    seed: u64,
+    cell_height: u32,
+    strain: bool,
+}
+
 fn gallery(
     ctx: &Context,
     name: &str,
     resolution: Option<usize>,
-    samples: u64,
-    seed: u64,
-    cell_height: u32,
+    rows: Rows,
     output: &Path,
 ) -> anyhow::Result<()> {
+    let Rows {
+        samples,
+        seed,
+        cell_height,
+        strain,
+    } = rows;
     use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer, RenderOptions};
     use sim::cloth::SimConfig;
 
@@ -958,9 +987,25 @@ fn gallery(
             &opts,
         )?);
         images.push(picture(&posed.vertices, &warp)?);
-        images.push(picture(&posed.vertices, &d.positions)?);
+        images.push(if strain {
+            let (colours, percent) = super::simulate::strain_colours(&cloth, &d.positions);
+            eval::render::render(
+                &[
+                    Layer::new(&posed.vertices, &model.triangles, BODY_COLOUR),
+                    Layer::new(&d.positions, &t.mesh.triangles, GARMENT_COLOUR)
+                        .with_vertex_colours(&colours, &percent),
+                ],
+                &opts,
+            )?
+        } else {
+            picture(&posed.vertices, &d.positions)?
+        });
     }
-    let grid = eval::render::grid(&images, 3, opts.background);
+    let mut grid = eval::render::grid(&images, 3, opts.background);
+    if strain {
+        let bar = super::simulate::strain_bar(grid.width.min(700));
+        grid = eval::render::stack(&[grid, bar], [255, 255, 255]);
+    }
     sim::io::write_all_or_nothing(&[(output, &eval::render::encode_png(&grid)?)])?;
     println!(
         "{}: {} x {} pixels -> {}",

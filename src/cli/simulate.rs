@@ -220,6 +220,29 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
 /// Strain shown at the red end of a strain map (a fraction).
 const STRAIN_MAP_MAX: f32 = 0.10;
 
+/// Each vertex's largest edge strain in percent, and its colour on the strain maps' scale
+/// (0 to `STRAIN_MAP_MAX`; more is red).
+pub(crate) fn strain_colours(cloth: &ClothModel, x: &[glam::Vec3]) -> (Vec<[u8; 3]>, Vec<f32>) {
+    let percent: Vec<f32> = drape::vertex_strain(cloth, x)
+        .iter()
+        .map(|s| s * 100.0)
+        .collect();
+    let colours = percent
+        .iter()
+        .map(|p| eval::render::error_colour(p / (STRAIN_MAP_MAX * 100.0)))
+        .collect();
+    (colours, percent)
+}
+
+/// The strain maps' colour bar, `width` pixels wide.
+pub(crate) fn strain_bar(width: u32) -> eval::render::Image {
+    eval::plot::colour_bar(
+        (STRAIN_MAP_MAX * 100.0) as f64,
+        "largest edge strain at each vertex (%)",
+        width,
+    )
+}
+
 /// The drape on the body, front and side, each garment vertex coloured by the largest
 /// strain of its edges, with a colour bar in percent.
 fn strain_map(
@@ -228,15 +251,8 @@ fn strain_map(
     body: &[glam::Vec3],
     body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
-    use eval::render::{Layer, RenderOptions, error_colour, render};
-    let percent: Vec<f32> = drape::vertex_strain(cloth, &draped.vertices)
-        .iter()
-        .map(|s| s * 100.0)
-        .collect();
-    let colours: Vec<[u8; 3]> = percent
-        .iter()
-        .map(|p| error_colour(p / (STRAIN_MAP_MAX * 100.0)))
-        .collect();
+    use eval::render::{Layer, RenderOptions, render};
+    let (colours, percent) = strain_colours(cloth, &draped.vertices);
     let img = render(
         &[
             Layer::new(body, body_triangles, eval::render::BODY_COLOUR),
@@ -249,11 +265,7 @@ fn strain_map(
         ],
         &RenderOptions::default(),
     )?;
-    let bar = eval::plot::colour_bar(
-        (STRAIN_MAP_MAX * 100.0) as f64,
-        "largest edge strain at each vertex (%)",
-        img.width.min(700),
-    );
+    let bar = strain_bar(img.width.min(700));
     Ok(eval::render::encode_png(&eval::render::stack(
         &[img, bar],
         [255, 255, 255],
