@@ -38,19 +38,26 @@ fn scene() -> &'static Scene {
     })
 }
 
-/// One frame (10 substeps) of the tube on the static body: detection, sweeps, collision.
-#[divan::bench(sample_count = 20)]
-fn frame_10k_tube(bencher: divan::Bencher) {
+/// One frame (10 substeps) of the tube on the static body: detection, sweeps, collision; on
+/// one thread, and on two (inside a pool of two threads, as in a drape: detection on both,
+/// each sweep's two halves at once).
+#[divan::bench(args = [1, 2], sample_count = 20)]
+fn frame_10k_tube(bencher: divan::Bencher, threads: usize) {
     let s = scene();
     let config = SimConfig::default();
     let cloth = ClothModel::new(&s.tube, &config, &[]).unwrap();
     let body = BodyCollider::new(&s.body, &s.model.triangles, config.margin);
     let mut solver = Solver::new(&cloth, &config, s.tube.vertices.clone());
-    solver.parallel = false;
-    bencher.bench_local(|| solver.frame(black_box(&body)));
+    solver.parallel = threads > 1;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    bencher.bench_local(|| pool.install(|| solver.frame(black_box(&body))));
 }
 
-/// One sweep over the tube's 69,862 distance constraints.
+/// One sweep over the tube's 69,862 distance constraints, on one thread (the two halves
+/// one after the other, then the constraints joining them).
 #[divan::bench(sample_count = 50)]
 fn constraint_sweep_10k_tube(bencher: divan::Bencher) {
     let s = scene();

@@ -15,10 +15,14 @@
 //! 3. **measure**: largest displacement over the frame and kinetic energy (the rest test
 //!    of the drape protocol uses them).
 //!
-//! Determinism: the constraint sweep runs in a fixed colour order on one thread; detection
-//! and collision treat each particle on its own (any thread count gives the same bits);
-//! no floating-point sum is split across threads.
+//! Determinism: the particles are split in two halves (`Halves`); each sweep solves the
+//! constraints inside each half in colour order, the two halves at once when a second
+//! thread is free (`Team`), then the constraints joining them. The halves share no
+//! particle, so one thread or two give the same bits. Detection and collision treat each
+//! particle on its own; no floating-point sum is split across threads.
 
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::time::Instant;
 
 use glam::{Vec3, Vec3A};
@@ -28,7 +32,7 @@ use serde::Serialize;
 use super::SimConfig;
 use super::collision::BodyCollider;
 use super::constraints::dihedral;
-use super::constraints::distance::{Kind, Prepared, Sweep};
+use super::constraints::distance::{Halves, Kind, Prepared, SplitSweep};
 use super::model::ClothModel;
 
 /// A contact's point and pseudo-normal at the start and end of a frame (the point moves
@@ -130,13 +134,17 @@ pub struct Solver<'m> {
     active: Vec<(u32, Plane)>,
     /// Distance constraints solved every substep, prepared for its length, in colour
     /// order: all of them if shear and bending run at the full rate, else the stretch ones.
-    sweep: Sweep,
+    sweep: SplitSweep,
     /// Shear and bending constraints solved every `shear_bend_interval`-th substep,
     /// prepared for that longer step (empty if they are in `sweep`).
-    slow: Sweep,
+    slow: SplitSweep,
     /// The stretch constraints alone, for the sweeps after the first of a substep when
     /// `stretch_iterations` > 1 and `sweep` holds every constraint (else empty).
-    stretch_only: Sweep,
+    stretch_only: SplitSweep,
+    /// The particles in two halves, for the sweeps.
+    halves: Halves,
+    /// The positions in the halves' order while the sweeps run.
+    buf: Vec<Vec3A>,
     self_grid: super::self_collision::SelfCollision,
 }
 
@@ -160,7 +168,7 @@ impl<'m> Solver<'m> {
         }
         let mut c = self.config.clone();
         c.substeps = substeps;
-        let (sweep, slow, stretch_only) = sweeps(self.model, &c);
+        let (sweep, slow, stretch_only) = sweeps(self.model, &c, &self.halves);
         self.sweep = sweep;
         self.slow = slow;
         self.stretch_only = stretch_only;
@@ -172,11 +180,14 @@ impl<'m> Solver<'m> {
         assert_eq!(x.len(), model.len());
         let x: Vec<Vec3A> = x.into_iter().map(Vec3A::from).collect();
         let n = x.len();
-        let (sweep, slow, stretch_only) = sweeps(model, config);
+        let halves = Halves::new(&model.rest);
+        let (sweep, slow, stretch_only) = sweeps(model, config, &halves);
         Self {
             sweep,
             slow,
             stretch_only,
+            buf: Vec::with_capacity(halves.len()),
+            halves,
             model,
             config: config.clone(),
             v: vec![Vec3A::ZERO; n],
@@ -252,81 +263,40 @@ impl<'m> Solver<'m> {
         self.times.detect += t0.elapsed().as_secs_f64();
 
         let g = Vec3A::from(c.gravity());
-        let vmax = c.max_velocity;
         let damp = (-c.damping * h).exp();
         let interval = c.shear_bend_interval();
         let h_slow = h * interval as f32;
         let inv_h2_slow = 1.0 / (h_slow * h_slow);
-        for s in 0..c.substeps {
-            // 2.1 predict
-            let t = Instant::now();
-            self.x_before.copy_from_slice(&self.x);
-            for ((x, v), w) in self
-                .x
-                .iter_mut()
-                .zip(self.v.iter_mut())
-                .zip(&self.model.inv_mass)
-            {
-                if *w == 0.0 {
-                    *v = Vec3A::ZERO;
-                    continue;
-                }
-                *v += g * h;
-                let speed = v.length();
-                if speed > vmax {
-                    *v *= vmax / speed;
-                }
-                *x += *v * h;
+        // The sweeps' buffer and the sweeps, lent to the team of this frame's substeps.
+        let mut buf = std::mem::take(&mut self.buf);
+        buf.resize(self.halves.len(), Vec3A::ZERO);
+        let (a, b) = buf.split_at_mut(self.halves.split());
+        let slow = std::mem::take(&mut self.slow);
+        let sweep = std::mem::take(&mut self.sweep);
+        let stretch_only = std::mem::take(&mut self.stretch_only);
+        let stretch = if interval == 1 { &stretch_only } else { &sweep };
+        let team = Team::new([&slow, &sweep, stretch], b);
+        let substeps = |this: &mut Self, a: &mut [Vec3A]| {
+            for s in 0..c.substeps {
+                this.substep(s, &team, a, g, damp, inv_h2_slow);
             }
-            self.times.predict += t.elapsed().as_secs_f64();
-
-            // 2.2 solve
-
-            let t = Instant::now();
-            if s % interval == 0 {
-                // Shear and bending first, so the stretch sweep has the last word before
-                // the contacts.
-                self.slow.run(&mut self.x);
-                self.solve_dihedral(inv_h2_slow);
-            }
-            self.solve_distance();
-            let stretch = if interval == 1 {
-                &self.stretch_only
-            } else {
-                &self.sweep
-            };
-            for _ in 1..c.stretch_iterations {
-                stretch.run(&mut self.x);
-            }
-            self.times.solve += t.elapsed().as_secs_f64();
-
-            // 2.3 collide
-            let t = Instant::now();
-            let (tb, te) = (
-                s as f32 / c.substeps as f32,
-                (s + 1) as f32 / c.substeps as f32,
+        };
+        if self.parallel && rayon::current_num_threads() > 1 {
+            rayon::join(
+                || {
+                    let _done = team.done_on_drop();
+                    substeps(self, a)
+                },
+                || team.help(),
             );
-            self.collide(tb, te);
-            self.times.collide += t.elapsed().as_secs_f64();
-
-            if self.config.self_collision {
-                let t = Instant::now();
-                let mut x3: Vec<Vec3> = self.x.iter().map(|p| Vec3::from(*p)).collect();
-                self.self_grid.solve(&mut x3, &self.model.inv_mass);
-                for (p, q) in self.x.iter_mut().zip(&x3) {
-                    *p = Vec3A::from(*q);
-                }
-                self.times.self_collision += t.elapsed().as_secs_f64();
-            }
-
-            // 2.4 velocities
-            let t = Instant::now();
-            for ((v, x), xb) in self.v.iter_mut().zip(&self.x).zip(&self.x_before) {
-                *v = (*x - *xb) / h * damp;
-            }
-            self.times.velocities += t.elapsed().as_secs_f64();
-            self.substeps_run += 1;
+        } else {
+            substeps(self, a);
         }
+        drop(team);
+        self.slow = slow;
+        self.sweep = sweep;
+        self.stretch_only = stretch_only;
+        self.buf = buf;
 
         // 3. measure
         let mut max_d2 = 0.0f32;
@@ -344,15 +314,107 @@ impl<'m> Solver<'m> {
         }
     }
 
-    /// One sweep over the distance constraints in colour order (stage 2.2 without the
-    /// optional dihedral constraints). Deliberately on one
-    /// thread: splitting a colour across the two cores of the development machine made the
-    /// sweep twice as slow on a 10k-particle tube (per-colour synchronisation 16 times a
-    /// substep, and cache lines shared between threads), both with a gather-apply scheme
-    /// and with relaxed atomics. Threads pay off in detection and collision, and across
-    /// drapes in dataset generation.
+    /// Substep `s` of a frame (stages 2.1 to 2.4), the sweeps run by `team` on the buffer
+    /// whose first half is `a`.
+    fn substep(
+        &mut self,
+        s: u32,
+        team: &Team<'_>,
+        a: &mut [Vec3A],
+        g: Vec3A,
+        damp: f32,
+        inv_h2_slow: f32,
+    ) {
+        let (h, vmax, interval) = (
+            self.config.substep_dt(),
+            self.config.max_velocity,
+            self.config.shear_bend_interval(),
+        );
+        let (substeps, stretch_iterations) = (self.config.substeps, self.config.stretch_iterations);
+        // 2.1 predict
+        let t = Instant::now();
+        self.x_before.copy_from_slice(&self.x);
+        for ((x, v), w) in self
+            .x
+            .iter_mut()
+            .zip(self.v.iter_mut())
+            .zip(&self.model.inv_mass)
+        {
+            if *w == 0.0 {
+                *v = Vec3A::ZERO;
+                continue;
+            }
+            *v += g * h;
+            let speed = v.length();
+            if speed > vmax {
+                *v *= vmax / speed;
+            }
+            *x += *v * h;
+        }
+        self.times.predict += t.elapsed().as_secs_f64();
+
+        // 2.2 solve
+        let t = Instant::now();
+        {
+            let mut b = team.b.lock().expect("the helper does not panic");
+            self.halves.gather(&self.x, a, &mut b);
+        }
+        if s % interval == 0 {
+            // Shear and bending first, so the stretch sweep has the last word before
+            // the contacts.
+            team.sweep(SLOW, a);
+            if !self.model.dihedral.is_empty() {
+                let mut b = team.b.lock().expect("the helper does not panic");
+                self.halves.scatter(a, &b, &mut self.x);
+                self.solve_dihedral(inv_h2_slow);
+                self.halves.gather(&self.x, a, &mut b);
+            }
+        }
+        team.sweep(EVERY, a);
+        for _ in 1..stretch_iterations {
+            team.sweep(STRETCH, a);
+        }
+        {
+            let b = team.b.lock().expect("the helper does not panic");
+            self.halves.scatter(a, &b, &mut self.x);
+        }
+        self.times.solve += t.elapsed().as_secs_f64();
+
+        // 2.3 collide
+        let t = Instant::now();
+        let (tb, te) = (s as f32 / substeps as f32, (s + 1) as f32 / substeps as f32);
+        self.collide(tb, te);
+        self.times.collide += t.elapsed().as_secs_f64();
+
+        if self.config.self_collision {
+            let t = Instant::now();
+            let mut x3: Vec<Vec3> = self.x.iter().map(|p| Vec3::from(*p)).collect();
+            self.self_grid.solve(&mut x3, &self.model.inv_mass);
+            for (p, q) in self.x.iter_mut().zip(&x3) {
+                *p = Vec3A::from(*q);
+            }
+            self.times.self_collision += t.elapsed().as_secs_f64();
+        }
+
+        // 2.4 velocities
+        let t = Instant::now();
+        for ((v, x), xb) in self.v.iter_mut().zip(&self.x).zip(&self.x_before) {
+            *v = (*x - *xb) / h * damp;
+        }
+        self.times.velocities += t.elapsed().as_secs_f64();
+        self.substeps_run += 1;
+    }
+
+    /// One sweep over the distance constraints (stage 2.2 without the optional dihedral
+    /// constraints), on this thread: the same bits as in a frame on one thread or two.
     pub fn solve_distance(&mut self) {
-        self.sweep.run(&mut self.x);
+        self.buf.resize(self.halves.len(), Vec3A::ZERO);
+        let (a, b) = self.buf.split_at_mut(self.halves.split());
+        self.halves.gather(&self.x, a, b);
+        self.sweep.run_half(0, a);
+        self.sweep.run_half(1, b);
+        self.sweep.run_joins(a, b);
+        self.halves.scatter(a, b, &mut self.x);
     }
 
     fn solve_dihedral(&mut self, inv_h2: f32) {
@@ -429,9 +491,121 @@ impl<'m> Solver<'m> {
     }
 }
 
+/// Which of a frame's sweeps a job is: shear and bending (when they run apart), the sweep of
+/// every substep, the extra stretch sweeps.
+const SLOW: u32 = 0;
+const EVERY: u32 = 1;
+const STRETCH: u32 = 2;
+
+/// The sweeps of one frame's substeps, shared by the thread that runs the frame and a
+/// helper. For each sweep the frame's thread posts a job, solves half 0, then solves half 1
+/// too unless the helper has claimed it first (if so it waits for it), then the joins. So
+/// the halves of a sweep run at once when a second thread is free, and one after the other
+/// otherwise, with the same bits. The helper spins between jobs: a rayon join per sweep
+/// cost more than the half it would save (a parked worker takes tens of microseconds to
+/// wake; a half-sweep of the 10k tube's stretch constraints takes about 35).
+struct Team<'s> {
+    /// The sweeps, by job kind.
+    sweeps: [&'s SplitSweep; 3],
+    /// Half 1 of the buffer.
+    b: Mutex<&'s mut [Vec3A]>,
+    /// The last job posted: its number (from 1) times 4 plus its kind.
+    posted: AtomicU32,
+    /// Number of the last job whose half 1 a thread has claimed.
+    claimed: AtomicU32,
+    /// Number of the last job whose half 1 is solved.
+    solved: AtomicU32,
+    /// Set when the frame's substeps are over: the helper returns.
+    over: AtomicBool,
+    /// Number of the frame thread's last job (only that thread writes it).
+    jobs: AtomicU32,
+}
+
+/// Ends a team's help when dropped (also if the substeps panic).
+struct Over<'t, 's>(&'t Team<'s>);
+
+impl Drop for Over<'_, '_> {
+    fn drop(&mut self) {
+        self.0.over.store(true, Ordering::Release);
+    }
+}
+
+impl<'s> Team<'s> {
+    fn new(sweeps: [&'s SplitSweep; 3], b: &'s mut [Vec3A]) -> Self {
+        Self {
+            sweeps,
+            b: Mutex::new(b),
+            posted: AtomicU32::new(0),
+            claimed: AtomicU32::new(0),
+            solved: AtomicU32::new(0),
+            over: AtomicBool::new(false),
+            jobs: AtomicU32::new(0),
+        }
+    }
+
+    /// A guard that ends the help when dropped.
+    fn done_on_drop(&self) -> Over<'_, 's> {
+        Over(self)
+    }
+
+    /// Solves half 1 of job `posted`.
+    fn solve_half_1(&self, posted: u32) {
+        let mut b = self
+            .b
+            .lock()
+            .expect("the frame's thread does not panic holding it");
+        self.sweeps[(posted & 3) as usize].run_half(1, &mut b);
+        drop(b);
+        self.solved.store(posted >> 2, Ordering::Release);
+    }
+
+    /// The helper: claims and solves half 1 of each job posted until the substeps are over.
+    fn help(&self) {
+        while !self.over.load(Ordering::Acquire) {
+            let posted = self.posted.load(Ordering::Acquire);
+            let job = posted >> 2;
+            if job > 0
+                && self
+                    .claimed
+                    .compare_exchange(job - 1, job, Ordering::AcqRel, Ordering::Acquire)
+                    .is_ok()
+            {
+                self.solve_half_1(posted);
+            } else {
+                std::hint::spin_loop();
+            }
+        }
+    }
+
+    /// One sweep of kind `kind` (the frame's thread), half 0 of the buffer being `a`.
+    fn sweep(&self, kind: u32, a: &mut [Vec3A]) {
+        let sweep = self.sweeps[kind as usize];
+        if sweep.is_empty() {
+            return;
+        }
+        let job = self.jobs.fetch_add(1, Ordering::Relaxed) + 1;
+        let posted = (job << 2) | kind;
+        self.posted.store(posted, Ordering::Release);
+        sweep.run_half(0, a);
+        if self
+            .claimed
+            .compare_exchange(job - 1, job, Ordering::AcqRel, Ordering::Acquire)
+            .is_ok()
+        {
+            self.solve_half_1(posted);
+        } else {
+            while self.solved.load(Ordering::Acquire) < job {
+                std::hint::spin_loop();
+            }
+        }
+        let mut b = self.b.lock().expect("the helper does not panic");
+        sweep.run_joins(a, &mut b);
+    }
+}
+
 /// The distance constraints of `model` whose kind passes `keep`, prepared for substeps of
 /// length `h` and grouped for the sweep (a colour's subset is still independent).
-fn prepare(model: &ClothModel, h: f32, keep: impl Fn(Kind) -> bool) -> Sweep {
+fn prepare(model: &ClothModel, h: f32, halves: &Halves, keep: impl Fn(Kind) -> bool) -> SplitSweep {
     let (w, inv_h2) = (&model.inv_mass, 1.0 / (h * h));
     let mut prepared = Vec::with_capacity(model.distance.len());
     let mut colours = Vec::with_capacity(model.distance_colours.len());
@@ -445,25 +619,29 @@ fn prepare(model: &ClothModel, h: f32, keep: impl Fn(Kind) -> bool) -> Sweep {
         }
         colours.push(start..prepared.len());
     }
-    Sweep::new(&prepared, &colours)
+    SplitSweep::new(&prepared, &colours, halves)
 }
 
 /// The sweeps of a solver for `config`'s substep: (every substep, slow, stretch only).
-fn sweeps(model: &ClothModel, config: &SimConfig) -> (Sweep, Sweep, Sweep) {
+fn sweeps(
+    model: &ClothModel,
+    config: &SimConfig,
+    halves: &Halves,
+) -> (SplitSweep, SplitSweep, SplitSweep) {
     let h = config.substep_dt();
     let interval = config.shear_bend_interval();
     let (sweep, slow) = if interval == 1 {
-        (prepare(model, h, |_| true), Sweep::default())
+        (prepare(model, h, halves, |_| true), SplitSweep::default())
     } else {
         (
-            prepare(model, h, |k| k == Kind::Stretch),
-            prepare(model, h * interval as f32, |k| k != Kind::Stretch),
+            prepare(model, h, halves, |k| k == Kind::Stretch),
+            prepare(model, h * interval as f32, halves, |k| k != Kind::Stretch),
         )
     };
     let stretch_only = if config.stretch_iterations > 1 && interval == 1 {
-        prepare(model, h, |k| k == Kind::Stretch)
+        prepare(model, h, halves, |k| k == Kind::Stretch)
     } else {
-        Sweep::default()
+        SplitSweep::default()
     };
     (sweep, slow, stretch_only)
 }

@@ -228,6 +228,199 @@ impl Sweep {
     }
 }
 
+/// The particles in two halves, each in a block of its own in a buffer that the solve
+/// stage works on: half 0 at the start, half 1 from `split` (a multiple of four particles,
+/// so the halves share no cache line), each in increasing particle order. The halves are
+/// the particles either side of the median of the rest shape along its longest extent, so
+/// few constraints join them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Halves {
+    /// Per buffer slot: its particle (`u32::MAX` for the padding between the halves).
+    order: Vec<u32>,
+    /// Per particle: its buffer slot.
+    slot: Vec<u32>,
+    /// Where half 1 starts in the buffer.
+    split: usize,
+}
+
+impl Halves {
+    /// Splits the particles at `rest`.
+    pub fn new(rest: &[Vec3]) -> Self {
+        let n = rest.len();
+        let (lo, hi) = rest.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        );
+        let extent = hi - lo;
+        let axis = if extent.x >= extent.y && extent.x >= extent.z {
+            0
+        } else if extent.y >= extent.z {
+            1
+        } else {
+            2
+        };
+        let mut by_axis: Vec<u32> = (0..n as u32).collect();
+        by_axis.sort_by(|&a, &b| {
+            rest[a as usize][axis]
+                .total_cmp(&rest[b as usize][axis])
+                .then(a.cmp(&b))
+        });
+        let mut half = vec![false; n];
+        for &p in &by_axis[n / 2..] {
+            half[p as usize] = true;
+        }
+        let first: Vec<u32> = (0..n as u32).filter(|&p| !half[p as usize]).collect();
+        let split = first.len().div_ceil(4) * 4;
+        let mut order = first;
+        order.resize(split, u32::MAX);
+        order.extend((0..n as u32).filter(|&p| half[p as usize]));
+        let mut slot = vec![0; n];
+        for (k, &p) in order.iter().enumerate() {
+            if p != u32::MAX {
+                slot[p as usize] = k as u32;
+            }
+        }
+        Self { order, slot, split }
+    }
+
+    /// Length of the buffer.
+    pub fn len(&self) -> usize {
+        self.order.len()
+    }
+
+    /// Where half 1 starts in the buffer.
+    pub fn split(&self) -> usize {
+        self.split
+    }
+
+    /// True if there are no particles.
+    pub fn is_empty(&self) -> bool {
+        self.order.is_empty()
+    }
+
+    /// Copies the particles' positions `x` into the buffer, given as its two parts `a`
+    /// (before [`Halves::split`]) and `b`.
+    pub fn gather(&self, x: &[Vec3A], a: &mut [Vec3A], b: &mut [Vec3A]) {
+        let (oa, ob) = self.order.split_at(self.split);
+        for (dst, order) in [(a, oa), (b, ob)] {
+            for (d, &p) in dst.iter_mut().zip(order) {
+                if p != u32::MAX {
+                    *d = x[p as usize];
+                }
+            }
+        }
+    }
+
+    /// Copies the buffer's two parts `a` and `b` back to the particles' positions `x`.
+    pub fn scatter(&self, a: &[Vec3A], b: &[Vec3A], x: &mut [Vec3A]) {
+        let split = self.split as u32;
+        for (p, &k) in x.iter_mut().zip(&self.slot) {
+            *p = if k < split {
+                a[k as usize]
+            } else {
+                b[(k - split) as usize]
+            };
+        }
+    }
+}
+
+/// A sweep split for two threads: the constraints inside each half (numbered from the
+/// half's start in the buffer of [`Halves`]), which can run at the same time, then those
+/// that join the halves (numbered in the buffer). Each group keeps the colour order. The
+/// halves share no particle, so the result does not depend on whether they run one after
+/// the other or at once: the same bits on one thread or two.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SplitSweep {
+    halves: [Sweep; 2],
+    joins: Vec<Prepared>,
+    split: u32,
+}
+
+impl SplitSweep {
+    /// Groups `prepared` (particle indices; sorted by colour, `colours` its ranges of one
+    /// colour each) for `halves`.
+    pub fn new(prepared: &[Prepared], colours: &[Range<usize>], halves: &Halves) -> Self {
+        let mut inside: [(Vec<Prepared>, Vec<Range<usize>>); 2] = Default::default();
+        let mut joins = Vec::new();
+        let split = halves.split as u32;
+        for range in colours {
+            let starts = inside.each_ref().map(|g| g.0.len());
+            for c in &prepared[range.clone()] {
+                let (i, j) = (halves.slot[c.i as usize], halves.slot[c.j as usize]);
+                match (i < split, j < split) {
+                    (true, true) => inside[0].0.push(Prepared { i, j, ..*c }),
+                    (false, false) => inside[1].0.push(Prepared {
+                        i: i - split,
+                        j: j - split,
+                        ..*c
+                    }),
+                    _ => joins.push(Prepared { i, j, ..*c }),
+                }
+            }
+            for (g, start) in inside.iter_mut().zip(starts) {
+                let end = g.0.len();
+                g.1.push(start..end);
+            }
+        }
+        Self {
+            halves: inside.map(|(p, c)| Sweep::new(&p, &c)),
+            joins,
+            split,
+        }
+    }
+
+    /// Number of constraints: inside the halves, and joining them.
+    pub fn len(&self) -> (usize, usize) {
+        (
+            self.halves[0].len() + self.halves[1].len(),
+            self.joins.len(),
+        )
+    }
+
+    /// True if there are no constraints.
+    pub fn is_empty(&self) -> bool {
+        self.len() == (0, 0)
+    }
+
+    /// Solves the constraints inside half `h` (0 or 1) once, moving `x` (that half's part
+    /// of the buffer).
+    pub fn run_half(&self, h: usize, x: &mut [Vec3A]) {
+        self.halves[h].run(x);
+    }
+
+    /// Solves the constraints that join the halves once, in colour order, moving `a` and
+    /// `b` (the halves' parts of the buffer).
+    pub fn run_joins(&self, a: &mut [Vec3A], b: &mut [Vec3A]) {
+        let split = self.split;
+        for c in &self.joins {
+            let get = |k: u32, a: &[Vec3A], b: &[Vec3A]| {
+                if k < split {
+                    a[k as usize]
+                } else {
+                    b[(k - split) as usize]
+                }
+            };
+            let (di, dj) = c.solve(get(c.i, a, b), get(c.j, a, b));
+            for (k, d) in [(c.i, di), (c.j, dj)] {
+                if k < split {
+                    a[k as usize] += d;
+                } else {
+                    b[(k - split) as usize] += d;
+                }
+            }
+        }
+    }
+
+    /// Solves every constraint once on this thread, moving `buf` (the buffer of
+    /// [`Halves`]): half 0, half 1, then the joins.
+    pub fn run(&self, buf: &mut [Vec3A]) {
+        let (a, b) = buf.split_at_mut(self.split as usize);
+        self.run_half(0, a);
+        self.run_half(1, b);
+        self.run_joins(a, b);
+    }
+}
+
 #[inline]
 fn solve_batch(b: &Batch, x: &mut [Vec3A]) {
     let d: [Vec3A; 4] = std::array::from_fn(|l| x[b.i[l] as usize] - x[b.j[l] as usize]);
