@@ -95,8 +95,9 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
             .iter()
             .all(|b| !bodies(Split::Train).contains(b))
     );
-    // The T-shirt has no friction of its own: it drapes with the config's.
+    // The T-shirt has no friction or substeps of its own: it drapes with the config's.
     assert_eq!(m.friction, Some(c.sim.friction));
+    assert_eq!(m.garment_substeps, None);
     let (ok, text) = run(drape().args(["data", "info"]).arg(dir));
     assert!(ok, "{text}");
     assert!(text.contains("test pose to nearest train"), "{text}");
@@ -357,6 +358,15 @@ fn drapes_of_another_template_material_or_build_are_not_resumed() {
     std::fs::write(&stamp, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
     let (ok, text) = generate(&copy, &[]);
     assert!(!ok && text.contains("another garment material"), "{text}");
+    // And with the garment at substeps of its own.
+    let copy = reference_copy(t.path(), "substeps");
+    let stamp = copy.join("config.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&stamp).unwrap()).unwrap();
+    v["garment_substeps"] = serde_json::json!(20);
+    std::fs::write(&stamp, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+    let (ok, text) = generate(&copy, &[]);
+    assert!(!ok && text.contains("own substeps"), "{text}");
     // Drapes of another build: refused, unless asked for; the manifest then names no
     // program.
     let copy = reference_copy(t.path(), "build");

@@ -62,7 +62,7 @@ impl Default for GenOptions {
 }
 
 /// What a dataset folder was started with (`config.json`): the resolved config and its
-/// sha256, the garment's own friction (for a garment that has one) and the program's
+/// sha256, the garment's own friction and substeps (for a garment that has them) and the program's
 /// sha256 (absent in folders started before they were recorded).
 #[derive(Debug, Serialize, Deserialize)]
 struct Stamp {
@@ -70,6 +70,8 @@ struct Stamp {
     config: serde_json::Value,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     garment_friction: Option<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    garment_substeps: Option<u32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     program_sha256: Option<String>,
 }
@@ -375,6 +377,7 @@ pub fn generate(
         config_sha256: config.hash(),
         config: config.resolved_json(),
         garment_friction: None,
+        garment_substeps: None,
         program_sha256: crate::manifest::program_sha256(),
     };
     if old
@@ -386,6 +389,7 @@ pub fn generate(
     let (model, library, template) = load_inputs(config, assets, log)?;
     let stamp = Stamp {
         garment_friction: template.meta.friction,
+        garment_substeps: template.meta.substeps,
         ..stamp
     };
     // Whether the drapes of this folder all come from this program.
@@ -393,6 +397,9 @@ pub fn generate(
     if let Some(o) = &old {
         if o.garment_friction != stamp.garment_friction {
             return Err(refuse("garment material (its own friction)"));
+        }
+        if o.garment_substeps != stamp.garment_substeps {
+            return Err(refuse("garment's own substeps (its `[simulation]`)"));
         }
         if o.program_sha256 != stamp.program_sha256 && holds_drapes(dir) {
             if o.program_sha256.is_some() && !opts.mixed_builds {
@@ -521,6 +528,7 @@ pub fn generate(
     );
     manifest.size_templates = wardrobe.size_fingerprints();
     manifest.friction = Some(wardrobe.friction());
+    manifest.garment_substeps = wardrobe.substeps();
     manifest.program_sha256 = stamp.program_sha256.clone().filter(|_| one_build);
     let manifest_path = dir.join(manifest_name(opts));
     write_atomic(

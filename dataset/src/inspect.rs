@@ -223,6 +223,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifes
             || m.static_sha256 != first.static_sha256
             || m.size_templates != first.size_templates
             || friction(m)? != friction(first)?
+            || m.garment_substeps != first.garment_substeps
         {
             return Err(DatasetError::Invalid(format!(
                 "part {i} in {} was made from another config or template",

@@ -107,6 +107,10 @@ pub struct Manifest {
     /// written before it was recorded: the config's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f32>,
+    /// The garment's own substeps a frame the drapes ran with (its definition's
+    /// `[simulation]`), absent when they ran at the simulator config's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub garment_substeps: Option<u32>,
     /// sha256 of the program that draped (`drape`'s executable; absent in manifests
     /// written before it was recorded). Two builds of the same source drape differently
     /// (by up to 15 mm: docs/datasets.md), so `drape data merge` joins only parts of one.
@@ -189,6 +193,7 @@ impl Manifest {
             static_sha256,
             size_templates: BTreeMap::new(),
             friction: None,
+            garment_substeps: None,
             program_sha256: None,
             shards,
         }

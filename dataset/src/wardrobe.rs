@@ -111,6 +111,12 @@ impl Wardrobe {
         self.base_cloth.friction
     }
 
+    /// The garment's own substeps a frame (its definition's `[simulation]`; `None`: the
+    /// simulator config's), shared by every size.
+    pub fn substeps(&self) -> Option<u32> {
+        self.base_cloth.substeps
+    }
+
     /// Each size's sha256 of its template's vertex positions (f32 little-endian; empty
     /// without sizes): what the manifest records and a redrape checks.
     pub fn size_fingerprints(&self) -> BTreeMap<String, String> {

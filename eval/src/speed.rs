@@ -265,6 +265,16 @@ impl<'w> Redraper<'w> {
                 config.garment
             )));
         }
+        // And its own substeps (none in a manifest written before they existed).
+        if data.manifest.garment_substeps != wardrobe.substeps() {
+            return Err(EvalError::Invalid(format!(
+                "{} was draped with the {}'s own substeps {:?}; they are {:?} here (the garment's `[simulation]` changed): regenerate the dataset",
+                data.dir.display(),
+                config.garment,
+                data.manifest.garment_substeps,
+                wardrobe.substeps()
+            )));
+        }
         let sizes = data
             .manifest
             .samples()

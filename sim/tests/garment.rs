@@ -491,6 +491,9 @@ fn bad_materials_are_rejected() {
         ("[material]\nfriction = nan\n", "from 0 to 2"),
         ("[material]\nfriction = 3.0\n", "from 0 to 2"),
         ("[material]\nstiffness = 1.0\n", "unknown field"),
+        ("[simulation]\nsubsteps = 0\n", "from 1 to 1000"),
+        ("[simulation]\nsubsteps = 1001\n", "from 1 to 1000"),
+        ("[simulation]\nsweeps = 3\n", "unknown field"),
     ] {
         let e = garment::GarmentDef::from_toml(&format!("{base}\n{extra}"), "t.toml").unwrap_err();
         assert!(e.contains(want), "{extra}: {e}");
@@ -498,6 +501,33 @@ fn bad_materials_are_rejected() {
     let ok = garment::GarmentDef::from_toml(&format!("{base}\n[material]\nfriction = 0.8\n"), "t")
         .unwrap();
     assert_eq!(ok.friction(), Some(0.8));
+}
+
+#[test]
+fn the_jeans_bring_their_own_substeps_to_the_simulator() {
+    // The jeans drape at 20 substeps throughout (their `[simulation]`), the tops at the
+    // config's; a config whose shear-and-bend rate cannot divide the jeans' 20 is refused.
+    let config = sim::cloth::SimConfig::default();
+    for t in built() {
+        let cloth = t.cloth(&config).unwrap();
+        let c = cloth.drape_config(&config).unwrap();
+        if t.meta.name == "jeans" {
+            assert_eq!(t.meta.substeps, Some(20));
+            assert_eq!((c.substeps, c.settle_substeps), (20, 20));
+            let odd = sim::cloth::SimConfig {
+                substeps: 9,
+                settle_substeps: 9,
+                shear_bend_substeps: Some(3),
+                ..Default::default()
+            };
+            assert!(odd.validate().is_ok());
+            let e = t.cloth(&odd).unwrap_err().to_string();
+            assert!(e.contains("own 20 substeps"), "{e}");
+        } else {
+            assert_eq!(t.meta.substeps, None, "{}", t.meta.name);
+            assert_eq!(c, config, "{}", t.meta.name);
+        }
+    }
 }
 
 #[test]

@@ -53,7 +53,7 @@ enum GarmentCommand {
         #[arg(long, value_name = "MU")]
         friction: Option<f32>,
     },
-    /// List the garments: built-in ones (their sizes, own friction, and which resolutions are
+    /// List the garments: built-in ones (their sizes, own friction and substeps, and which resolutions are
     /// cached) and imported ones (own friction).
     List,
     /// Render a garment: the canonical body, the template on it and alone; then one row per
@@ -291,7 +291,10 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                 );
                 let friction = def
                     .friction()
-                    .map_or_else(String::new, |mu| format!(", friction {mu}"));
+                    .map_or_else(String::new, |mu| format!(", friction {mu}"))
+                    + &def
+                        .substeps()
+                        .map_or_else(String::new, |n| format!(", {n} substeps"));
                 println!(
                     "{name:8} built-in  {} [{graded}{friction}]{}",
                     def.description,
@@ -603,7 +606,13 @@ fn check(
         } else {
             "one size".to_string()
         },
-        config.stepping(),
+        match t.meta.substeps {
+            Some(n) => format!(
+                "{} (the garment's own: at least {n} substeps throughout)",
+                config.stepping()
+            ),
+            None => config.stepping(),
+        },
         if t.meta.friction.is_some() {
             " (the garment's own)"
         } else {

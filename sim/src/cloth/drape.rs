@@ -639,6 +639,11 @@ pub fn drape(
         config.validate().is_ok(),
         "drape() needs a validated SimConfig"
     );
+    // A garment's own substeps (`ClothModel::substeps`), checked by `Template::cloth`.
+    let own = model
+        .drape_config(config)
+        .expect("the garment's substeps fit the config");
+    let config = &own;
     let t_all = Instant::now();
     let t = Instant::now();
     let mut body = BodyCollider::new(&motion.at(0), motion.triangles(), config.margin);

@@ -37,6 +37,9 @@ pub struct ClothModel {
     /// Coulomb friction coefficient between this cloth and the body: the config's, or a
     /// garment's own (`Template::cloth`).
     pub friction: f32,
+    /// Substeps a frame this cloth needs while the body moves, at least: a garment's own
+    /// (`Template::cloth`; `None`: the config's). See [`ClothModel::drape_config`].
+    pub substeps: Option<u32>,
 }
 
 /// Checks that a mesh can be simulated: finite positions, valid indices, no degenerate or
@@ -98,6 +101,24 @@ pub fn validate_mesh(mesh: &TriMesh) -> Result<(), String> {
 }
 
 impl ClothModel {
+    /// The config a drape of this cloth runs with: `config` with `substeps` and
+    /// `settle_substeps` raised to the cloth's own [`ClothModel::substeps`] where that is
+    /// more. An error if the result is not a valid config (a `shear_bend_substeps` that
+    /// does not divide the garment's substeps).
+    pub fn drape_config(&self, config: &SimConfig) -> Result<SimConfig, String> {
+        let Some(n) = self.substeps else {
+            return Ok(config.clone());
+        };
+        let c = SimConfig {
+            substeps: config.substeps.max(n),
+            settle_substeps: config.settle_substeps.max(n),
+            ..config.clone()
+        };
+        c.validate()
+            .map_err(|e| format!("with the garment's own {n} substeps: {e}"))?;
+        Ok(c)
+    }
+
     /// Number of distance constraints of each kind: stretch, shear, bend.
     pub fn kind_counts(&self) -> [usize; 3] {
         let mut n = [0usize; 3];
@@ -269,6 +290,7 @@ impl ClothModel {
             dihedral,
             dihedral_colours,
             friction: config.friction,
+            substeps: None,
         })
     }
 

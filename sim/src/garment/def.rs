@@ -34,6 +34,18 @@ pub struct GarmentDef {
     /// The fabric's contact with the body (none: the simulator config's).
     #[serde(default)]
     pub material: Option<MaterialDef>,
+    /// Simulator settings the garment needs (none: the simulator config's).
+    #[serde(default)]
+    pub simulation: Option<SimulationDef>,
+}
+
+/// What a garment needs of the simulator.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimulationDef {
+    /// Substeps a frame while the body moves, at least (from 1 to 1000): a garment that
+    /// hangs by friction sags at the config's 10 and slides down while the body moves.
+    pub substeps: Option<u32>,
 }
 
 /// What a garment's fabric brings to the simulation besides its shape.
@@ -183,6 +195,11 @@ pub fn check_friction(mu: f32) -> Result<(), String> {
 }
 
 impl GarmentDef {
+    /// The garment's own substeps while the body moves (`[simulation] substeps`), if any.
+    pub fn substeps(&self) -> Option<u32> {
+        self.simulation.and_then(|s| s.substeps)
+    }
+
     /// The garment's own friction against the body (`[material] friction`), if it has one.
     pub fn friction(&self) -> Option<f32> {
         self.material.and_then(|m| m.friction)
@@ -209,6 +226,13 @@ impl GarmentDef {
         }
         if let Some(mu) = def.friction() {
             check_friction(mu).map_err(|e| format!("{origin}: material {e}"))?;
+        }
+        if let Some(n) = def.substeps() {
+            if !(1..=1000).contains(&n) {
+                return Err(format!(
+                    "{origin}: simulation substeps must be from 1 to 1000 (got {n})"
+                ));
+            }
         }
         if let Some(g) = &def.grading {
             if g.by.is_empty() || g.sizes.is_empty() {

@@ -191,6 +191,7 @@ pub fn build_template(
             key,
             size: None,
             friction: def.friction(),
+            substeps: def.substeps(),
             build: serde_json::json!({
                 "vertices": mesh.vertices.len(),
                 "triangles": mesh.triangles.len(),
@@ -637,6 +638,7 @@ pub fn import_mesh(
             key: String::new(),
             size: None,
             friction: None,
+            substeps: None,
             build: serde_json::json!({
                 "source": path.display().to_string(),
                 "vertices": mesh.vertices.len(),

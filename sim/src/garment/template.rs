@@ -50,6 +50,11 @@ pub struct TemplateMeta {
     /// the simulator config's). [`Template::cloth`] cooks it into the cloth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f32>,
+    /// Substeps a frame the garment needs while the body moves, at least (its
+    /// definition's `[simulation]`; `None`: the simulator config's). [`Template::cloth`]
+    /// cooks it into the cloth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub substeps: Option<u32>,
 }
 
 /// A graded template's size.
@@ -84,10 +89,18 @@ fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
 
 impl Template {
     /// The template cooked for the simulator with `config`, its fabric's friction
-    /// (`meta.friction`) in place of the config's when the garment has its own.
+    /// (`meta.friction`) in place of the config's when the garment has its own, and its
+    /// own substeps (`meta.substeps`), checked against `config`.
     pub fn cloth(&self, config: &SimConfig) -> Result<ClothModel, SimError> {
         let mut cloth = ClothModel::new(&self.mesh, config, &[])?;
         cloth.friction = self.friction(config);
+        cloth.substeps = self.meta.substeps;
+        cloth
+            .drape_config(config)
+            .map_err(|reason| SimError::Config {
+                path: format!("(garment {})", self.meta.name).into(),
+                reason,
+            })?;
         Ok(cloth)
     }
 
