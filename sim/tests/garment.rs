@@ -505,24 +505,24 @@ fn bad_materials_are_rejected() {
 
 #[test]
 fn the_jeans_bring_their_own_substeps_to_the_simulator() {
-    // The jeans drape at 20 substeps throughout (their `[simulation]`), the tops at the
-    // config's; a config whose shear-and-bend rate cannot divide the jeans' 20 is refused.
+    // The jeans drape at 30 substeps throughout (their `[simulation]`), the tops at the
+    // config's; a config whose shear-and-bend rate cannot divide the jeans' 30 is refused.
     let config = sim::cloth::SimConfig::default();
     for t in built() {
         let cloth = t.cloth(&config).unwrap();
         let c = cloth.drape_config(&config).unwrap();
         if t.meta.name == "jeans" {
-            assert_eq!(t.meta.substeps, Some(20));
-            assert_eq!((c.substeps, c.settle_substeps), (20, 20));
+            assert_eq!(t.meta.substeps, Some(30));
+            assert_eq!((c.substeps, c.settle_substeps), (30, 30));
             let odd = sim::cloth::SimConfig {
-                substeps: 9,
-                settle_substeps: 9,
-                shear_bend_substeps: Some(3),
+                substeps: 8,
+                settle_substeps: 8,
+                shear_bend_substeps: Some(4),
                 ..Default::default()
             };
             assert!(odd.validate().is_ok());
             let e = t.cloth(&odd).unwrap_err().to_string();
-            assert!(e.contains("own 20 substeps"), "{e}");
+            assert!(e.contains("own 30 substeps"), "{e}");
         } else {
             assert_eq!(t.meta.substeps, None, "{}", t.meta.name);
             assert_eq!(c, config, "{}", t.meta.name);
