@@ -699,7 +699,7 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     assert!(!o.status.success() && stderr(&o).contains("friction must be from 0 to 2"));
     let o = import("0.3");
     assert!(o.status.success(), "{}", stderr(&o));
-    // The list names each garment's sizes and own friction.
+    // The list names each garment's sizes, own friction and own substeps.
     let o = drape(&["--assets", a, "garment", "list"]);
     let list = String::from_utf8_lossy(&o.stdout).to_string();
     let line = |name: &str| {
@@ -709,7 +709,7 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
             .to_string()
     };
     assert!(
-        line("jeans").contains("[12 sizes by waist, hips, height, friction 0.8]"),
+        line("jeans").contains("[12 sizes by waist, hips, height, friction 0.8, 30 substeps]"),
         "{list}"
     );
     assert!(

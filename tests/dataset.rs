@@ -349,23 +349,20 @@ fn drapes_of_another_template_material_or_build_are_not_resumed() {
         bytes,
         "the folder was left as it was"
     );
-    // A folder started with the garment at another friction of its own.
-    let copy = reference_copy(t.path(), "material");
-    let stamp = copy.join("config.json");
-    let mut v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&stamp).unwrap()).unwrap();
-    v["garment_friction"] = serde_json::json!(0.8);
-    std::fs::write(&stamp, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
-    let (ok, text) = generate(&copy, &[]);
+    // A folder started with the garment at another friction, or other substeps, of its own:
+    // its stamp says so.
+    let restamped = |name: &str, key: &str, value: serde_json::Value| {
+        let copy = reference_copy(t.path(), name);
+        let stamp = copy.join("config.json");
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&stamp).unwrap()).unwrap();
+        v[key] = value;
+        std::fs::write(&stamp, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+        generate(&copy, &[])
+    };
+    let (ok, text) = restamped("material", "garment_friction", serde_json::json!(0.8));
     assert!(!ok && text.contains("another garment material"), "{text}");
-    // And with the garment at substeps of its own.
-    let copy = reference_copy(t.path(), "substeps");
-    let stamp = copy.join("config.json");
-    let mut v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&stamp).unwrap()).unwrap();
-    v["garment_substeps"] = serde_json::json!(20);
-    std::fs::write(&stamp, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
-    let (ok, text) = generate(&copy, &[]);
+    let (ok, text) = restamped("substeps", "garment_substeps", serde_json::json!(20));
     assert!(!ok && text.contains("own substeps"), "{text}");
     // Drapes of another build: refused, unless asked for; the manifest then names no
     // program.
