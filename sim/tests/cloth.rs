@@ -498,7 +498,8 @@ fn same_bits_on_one_thread_and_on_two() {
     let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 64, 32);
     let cloth = primitives::grid(Vec3::new(-0.5, 0.4, -0.5), Vec3::X, Vec3::Z, 60, 60);
     let model = ClothModel::new(&cloth, &config, &[]).unwrap();
-    // Detection and collision run on rayon's threads when `parallel` is set.
+    // Detection runs on rayon's threads when `parallel` is set, and each sweep's two halves
+    // of the particles on two.
     let body = StaticBody {
         vertices: sphere.vertices,
         triangles: sphere.triangles,
@@ -509,19 +510,23 @@ fn same_bits_on_one_thread_and_on_two() {
             .build()
             .unwrap();
         pool.install(|| {
-            drape::drape(
+            let d = drape::drape(
                 &model,
                 &cloth.vertices,
                 &body,
                 &config,
                 parallel,
                 &mut |_| {},
-            )
-            .positions
+            );
+            (d.positions, d.report.helper_half_sweeps)
         })
     };
-    let one = run(1, false);
-    let two = run(2, true);
+    let (one, helped_one) = run(1, false);
+    let (two, helped_two) = run(2, true);
+    assert_eq!(helped_one, 0);
+    // The second thread took part (each substep runs six sweeps).
+    assert!(helped_two > 0, "the helper never solved a half");
+    eprintln!("the helper solved {helped_two} half-sweeps");
     assert!(
         one.iter()
             .zip(&two)
@@ -582,8 +587,12 @@ fn failed_drapes_say_why() {
 
 #[test]
 fn same_bits_on_any_thread_count_with_a_moving_body() {
+    // With the optional dihedral bending and shear and bending at half the rate too: the
+    // dihedral sweep runs between the halves' sweeps, on the positions gathered back.
     let config = SimConfig {
         gravity: [0.0, -9.81, 0.0],
+        dihedral_bending: true,
+        shear_bend_substeps: Some(5),
         ..Default::default()
     };
     let cyl = primitives::cylinder(Vec3::new(0.0, -0.5, 0.0), 0.1, 1.0, 48, 8);
@@ -624,6 +633,11 @@ fn same_bits_on_any_thread_count_with_a_moving_body() {
     );
     assert_eq!(a.report.settle_frames, b.report.settle_frames);
     assert_eq!(a.report.strain, b.report.strain);
+    assert!(a.report.constraints[3] > 0, "dihedral constraints");
+    assert!(
+        b.report.helper_half_sweeps > 0,
+        "the helper never solved a half"
+    );
 }
 
 #[test]

@@ -245,7 +245,7 @@ fn bench_speedup(
         run.display(),
         samples.max(1).min(data.count(dataset::config::Split::Test)),
         dc.name,
-        dc.sim.stepping()
+        template.stepping(&dc.sim)
     );
     println!(
         "{:>8} {:>9} {:>7} {:>10} {:>7} {:>9} {:>10} {:>11} {:>10}",
@@ -423,7 +423,10 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
         cloth.len(),
         tube.triangles.len(),
         cloth.distance_colours.len(),
-        config.stepping(),
+        cloth
+            .drape_config(&config)
+            .map_err(anyhow::Error::msg)?
+            .stepping(),
         config.morph_frames,
         config.max_morph_speed
     );

@@ -296,7 +296,7 @@ fn sensitivity_run(
         template.mesh.vertices.len(),
         split.name(),
         amplitudes.len(),
-        dc.sim.stepping(),
+        template.stepping(&dc.sim),
         amplitudes
             .iter()
             .map(|a| format!("{a:e}"))

@@ -606,13 +606,7 @@ fn check(
         } else {
             "one size".to_string()
         },
-        match t.meta.substeps {
-            Some(n) => format!(
-                "{} (the garment's own: at least {n} substeps throughout)",
-                config.stepping()
-            ),
-            None => config.stepping(),
-        },
+        t.stepping(&config),
         if t.meta.friction.is_some() {
             " (the garment's own)"
         } else {

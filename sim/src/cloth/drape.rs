@@ -329,6 +329,9 @@ pub struct DrapeReport {
     pub settle_frames: u32,
     /// Substeps run in total.
     pub substeps: u64,
+    /// Half-sweeps solved by the second thread (0 on one thread): how much of the sweeps
+    /// ran on both cores.
+    pub helper_half_sweeps: u64,
     /// Wall time of the whole drape (s).
     pub wall_time: f64,
     /// Wall time per stage (s).
@@ -627,6 +630,11 @@ pub fn check_placement(body: &BodyCollider, x: &[Vec3]) -> Result<(), SimError> 
 
 /// Runs a drape: `start` positions, the body's motion, then settling, push-out and the
 /// report. `parallel` lets a frame use rayon's threads; the result is the same either way.
+///
+/// # Panics
+/// If `config` is not valid, or the cloth's own substeps do not fit it
+/// ([`ClothModel::drape_config`]; a cloth from `Template::cloth` was checked against the
+/// config it was made with).
 pub fn drape(
     model: &ClothModel,
     start: &[Vec3],
@@ -639,10 +647,11 @@ pub fn drape(
         config.validate().is_ok(),
         "drape() needs a validated SimConfig"
     );
-    // A garment's own substeps (`ClothModel::substeps`), checked by `Template::cloth`.
+    // A garment's own substeps (`ClothModel::substeps`), checked against the same config
+    // by `Template::cloth`.
     let own = model
         .drape_config(config)
-        .expect("the garment's substeps fit the config");
+        .expect("the garment's own substeps fit the config (Template::cloth checks it)");
     let config = &own;
     let t_all = Instant::now();
     let t = Instant::now();
@@ -792,6 +801,7 @@ pub fn drape(
         morph_frames: motion.frames(),
         settle_frames: settle,
         substeps: solver.substeps_run,
+        helper_half_sweeps: solver.helper_half_sweeps,
         wall_time: t_all.elapsed().as_secs_f64(),
         stage_times: solver.times,
         verify_time,

@@ -37,8 +37,9 @@ pub struct ClothModel {
     /// Coulomb friction coefficient between this cloth and the body: the config's, or a
     /// garment's own (`Template::cloth`).
     pub friction: f32,
-    /// Substeps a frame this cloth needs while the body moves, at least: a garment's own
-    /// (`Template::cloth`; `None`: the config's). See [`ClothModel::drape_config`].
+    /// Substeps a frame this cloth needs, at least, while the body moves and while it
+    /// settles: a garment's own (`Template::cloth`; `None`: the config's). See
+    /// [`ClothModel::drape_config`].
     pub substeps: Option<u32>,
 }
 

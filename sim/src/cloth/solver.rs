@@ -6,7 +6,8 @@
 //!    still and the particle stays inside that search's slack;
 //! 2. for each substep (`h = frame / substeps`):
 //!    1. **predict**: `v += g h`, clamp the speed, `x += v h`;
-//!    2. **solve**: one Gauss-Seidel sweep over the constraint colours (XPBD); with
+//!    2. **solve**: one Gauss-Seidel sweep over the constraint colours (XPBD), inside each
+//!       half of the particles (the halves at once on two threads), then across them; with
 //!       `shear_bend_substeps` set, shear and bending only every few substeps and the
 //!       stretch constraints every substep; `stretch_iterations` - 1 more stretch sweeps;
 //!    3. **collide**: push particles out of the body interpolated to the substep's time,
@@ -125,6 +126,8 @@ pub struct Solver<'m> {
     pub times: StageTimes,
     /// Substeps run so far.
     pub substeps_run: u64,
+    /// Half-sweeps solved by the helper thread so far (0 on one thread).
+    pub helper_half_sweeps: u64,
     x_before: Vec<Vec3A>,
     x_frame: Vec<Vec3A>,
     /// Per particle: its contact this frame and its last search.
@@ -197,6 +200,7 @@ impl<'m> Solver<'m> {
             parallel: true,
             times: StageTimes::default(),
             substeps_run: 0,
+            helper_half_sweeps: 0,
             contacts: vec![ContactState::default(); n],
             active: Vec::new(),
             self_grid: super::self_collision::SelfCollision::new(model, config.self_distance),
@@ -292,6 +296,7 @@ impl<'m> Solver<'m> {
         } else {
             substeps(self, a);
         }
+        self.helper_half_sweeps += u64::from(team.helped.load(Ordering::Acquire));
         drop(team);
         self.slow = slow;
         self.sweep = sweep;
@@ -517,8 +522,38 @@ struct Team<'s> {
     solved: AtomicU32,
     /// Set when the frame's substeps are over: the helper returns.
     over: AtomicBool,
+    /// Set if the helper panicked: the frame's thread stops waiting for it and panics too.
+    failed: AtomicBool,
+    /// Half-sweeps the helper solved.
+    helped: AtomicU32,
     /// Number of the frame thread's last job (only that thread writes it).
     jobs: AtomicU32,
+}
+
+/// Spins, and after [`SPINS_BEFORE_YIELD`] calls also yields the thread's time slice (the
+/// other thread may have been descheduled).
+fn backoff(count: &mut u32) {
+    *count = count.saturating_add(1);
+    if *count > SPINS_BEFORE_YIELD {
+        std::thread::yield_now();
+    } else {
+        std::hint::spin_loop();
+    }
+}
+
+/// Spins of a waiting team thread before it starts yielding (a few tens of microseconds:
+/// longer than a half-sweep of the 10k tube's stretch constraints).
+const SPINS_BEFORE_YIELD: u32 = 1 << 14;
+
+/// Sets its flag if dropped while its thread panics.
+struct Failed<'a>(&'a AtomicBool);
+
+impl Drop for Failed<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.store(true, Ordering::Release);
+        }
+    }
 }
 
 /// Ends a team's help when dropped (also if the substeps panic).
@@ -539,6 +574,8 @@ impl<'s> Team<'s> {
             claimed: AtomicU32::new(0),
             solved: AtomicU32::new(0),
             over: AtomicBool::new(false),
+            failed: AtomicBool::new(false),
+            helped: AtomicU32::new(0),
             jobs: AtomicU32::new(0),
         }
     }
@@ -560,7 +597,11 @@ impl<'s> Team<'s> {
     }
 
     /// The helper: claims and solves half 1 of each job posted until the substeps are over.
+    /// It spins between jobs, and yields its time slice after a while without one (the
+    /// collision stage of a substep).
     fn help(&self) {
+        let _flag = Failed(&self.failed);
+        let mut idle = 0u32;
         while !self.over.load(Ordering::Acquire) {
             let posted = self.posted.load(Ordering::Acquire);
             let job = posted >> 2;
@@ -571,8 +612,10 @@ impl<'s> Team<'s> {
                     .is_ok()
             {
                 self.solve_half_1(posted);
+                self.helped.fetch_add(1, Ordering::Relaxed);
+                idle = 0;
             } else {
-                std::hint::spin_loop();
+                backoff(&mut idle);
             }
         }
     }
@@ -594,8 +637,13 @@ impl<'s> Team<'s> {
         {
             self.solve_half_1(posted);
         } else {
+            let mut waited = 0u32;
             while self.solved.load(Ordering::Acquire) < job {
-                std::hint::spin_loop();
+                assert!(
+                    !self.failed.load(Ordering::Acquire),
+                    "the sweeps' helper thread panicked"
+                );
+                backoff(&mut waited);
             }
         }
         let mut b = self.b.lock().expect("the helper does not panic");

@@ -43,7 +43,7 @@ pub struct GarmentDef {
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimulationDef {
-    /// Substeps a frame while the body moves, at least (from 1 to 1000): a garment that
+    /// Substeps a frame, at least, throughout the drape (from 1 to 1000): a garment that
     /// hangs by friction sags at the config's 10 and slides down while the body moves.
     pub substeps: Option<u32>,
 }
@@ -195,7 +195,7 @@ pub fn check_friction(mu: f32) -> Result<(), String> {
 }
 
 impl GarmentDef {
-    /// The garment's own substeps while the body moves (`[simulation] substeps`), if any.
+    /// The garment's own substeps a frame, at least (`[simulation] substeps`), if any.
     pub fn substeps(&self) -> Option<u32> {
         self.simulation.and_then(|s| s.substeps)
     }

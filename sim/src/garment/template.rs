@@ -50,7 +50,7 @@ pub struct TemplateMeta {
     /// the simulator config's). [`Template::cloth`] cooks it into the cloth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f32>,
-    /// Substeps a frame the garment needs while the body moves, at least (its
+    /// Substeps a frame the garment needs throughout a drape, at least (its
     /// definition's `[simulation]`; `None`: the simulator config's). [`Template::cloth`]
     /// cooks it into the cloth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -102,6 +102,18 @@ impl Template {
                 reason,
             })?;
         Ok(cloth)
+    }
+
+    /// How `config` steps, for a summary line, with the garment's own substeps if it has
+    /// them ([`SimConfig::stepping`]).
+    pub fn stepping(&self, config: &SimConfig) -> String {
+        match self.meta.substeps {
+            Some(n) => format!(
+                "{}; the garment's own: at least {n} substeps throughout",
+                config.stepping()
+            ),
+            None => config.stepping(),
+        }
     }
 
     /// The friction this garment drapes with under `config`: its own, else the config's.

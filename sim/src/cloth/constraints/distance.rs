@@ -230,7 +230,8 @@ impl Sweep {
 
 /// The particles in two halves, each in a block of its own in a buffer that the solve
 /// stage works on: half 0 at the start, half 1 from `split` (a multiple of four particles,
-/// so the halves share no cache line), each in increasing particle order. The halves are
+/// 64 bytes, so at most one cache line straddles the two), each in increasing particle
+/// order. The halves are
 /// the particles either side of the median of the rest shape along its longest extent, so
 /// few constraints join them.
 #[derive(Debug, Clone, Default, PartialEq)]
