@@ -835,6 +835,7 @@ mod tests {
             morph_frames: 0,
             settle_frames: 0,
             substeps: 0,
+            helper_half_sweeps: 0,
             wall_time: 0.0,
             stage_times: Default::default(),
             verify_time: 0.0,
