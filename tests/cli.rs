@@ -709,11 +709,11 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
             .to_string()
     };
     assert!(
-        line("jeans").contains("[12 sizes by waist, hips, height, friction 0.8, 30 substeps]"),
+        line("jeans").contains("[14 sizes by waist, hips, height, friction 0.8, 30 substeps]"),
         "{list}"
     );
     assert!(
-        line("tshirt").contains("12 sizes by chest") && !line("tshirt").contains("friction"),
+        line("tshirt").contains("14 sizes by chest") && !line("tshirt").contains("friction"),
         "{list}"
     );
     assert!(

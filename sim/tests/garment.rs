@@ -433,7 +433,7 @@ fn a_body_wears_the_size_its_measurements_pick() {
         muscle: 0.25,
         ..Default::default()
     };
-    assert_eq!(pick(largest), "men-XL-tall");
+    assert_eq!(pick(largest), "men-XXL-tall");
     let smallest = sim::body::ShapeParams {
         gender: 0.0,
         age: 0.8,
