@@ -577,6 +577,11 @@ fn check(
         }
     }
     let t = wardrobe.loaded(&base);
+    // The config the drapes run with: the garment's own substeps raise the config's.
+    let stepped = t
+        .cloth(&config)?
+        .drape_config(&config)
+        .map_err(anyhow::Error::msg)?;
     let top = t.top_opening();
     // The second part of a two-part garment (the dress's skirt), measured on its own too
     // (sizes share the base's vertices).
@@ -756,8 +761,8 @@ fn check(
         "garment": name,
         "vertices": t.len(),
         "drapes": rows.len(),
-        "substeps": config.substeps,
-        "settle_substeps": config.settle_substeps,
+        "substeps": stepped.substeps,
+        "settle_substeps": stepped.settle_substeps,
         "friction": f32_as_written(friction),
         "converged_share": converged as f64 / n,
         "deepest_mm": f("deepest_mm").into_iter().fold(0.0, f64::max),
@@ -991,13 +996,12 @@ fn gallery(
         )?);
         images.push(picture(&posed.vertices, &warp)?);
         images.push(if strain {
-            let (colours, percent) = super::simulate::strain_colours(&cloth, &d.positions);
-            eval::render::render(
-                &[
-                    Layer::new(&posed.vertices, &model.triangles, BODY_COLOUR),
-                    Layer::new(&d.positions, &t.mesh.triangles, GARMENT_COLOUR)
-                        .with_vertex_colours(&colours, &percent),
-                ],
+            super::simulate::strain_picture(
+                &cloth,
+                &d.positions,
+                &t.mesh.triangles,
+                &posed.vertices,
+                &model.triangles,
                 &opts,
             )?
         } else {

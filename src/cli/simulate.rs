@@ -222,7 +222,7 @@ const STRAIN_MAP_MAX: f32 = 0.10;
 
 /// Each vertex's largest edge strain in percent, and its colour on the strain maps' scale
 /// (0 to `STRAIN_MAP_MAX`; more is red).
-pub(crate) fn strain_colours(cloth: &ClothModel, x: &[glam::Vec3]) -> (Vec<[u8; 3]>, Vec<f32>) {
+fn strain_colours(cloth: &ClothModel, x: &[glam::Vec3]) -> (Vec<[u8; 3]>, Vec<f32>) {
     let percent: Vec<f32> = drape::vertex_strain(cloth, x)
         .iter()
         .map(|s| s * 100.0)
@@ -243,6 +243,27 @@ pub(crate) fn strain_bar(width: u32) -> eval::render::Image {
     )
 }
 
+/// The drape `x` (faces `triangles`) on the body, front and side, each garment vertex
+/// coloured by the largest strain of its edges (no colour bar).
+pub(crate) fn strain_picture(
+    cloth: &ClothModel,
+    x: &[glam::Vec3],
+    triangles: &[[u32; 3]],
+    body: &[glam::Vec3],
+    body_triangles: &[[u32; 3]],
+    opts: &eval::render::RenderOptions,
+) -> anyhow::Result<eval::render::Image> {
+    use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer};
+    let (colours, percent) = strain_colours(cloth, x);
+    Ok(eval::render::render(
+        &[
+            Layer::new(body, body_triangles, BODY_COLOUR),
+            Layer::new(x, triangles, GARMENT_COLOUR).with_vertex_colours(&colours, &percent),
+        ],
+        opts,
+    )?)
+}
+
 /// The drape on the body, front and side, each garment vertex coloured by the largest
 /// strain of its edges, with a colour bar in percent.
 fn strain_map(
@@ -251,19 +272,13 @@ fn strain_map(
     body: &[glam::Vec3],
     body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
-    use eval::render::{Layer, RenderOptions, render};
-    let (colours, percent) = strain_colours(cloth, &draped.vertices);
-    let img = render(
-        &[
-            Layer::new(body, body_triangles, eval::render::BODY_COLOUR),
-            Layer::new(
-                &draped.vertices,
-                &draped.triangles,
-                eval::render::GARMENT_COLOUR,
-            )
-            .with_vertex_colours(&colours, &percent),
-        ],
-        &RenderOptions::default(),
+    let img = strain_picture(
+        cloth,
+        &draped.vertices,
+        &draped.triangles,
+        body,
+        body_triangles,
+        &eval::render::RenderOptions::default(),
     )?;
     let bar = strain_bar(img.width.min(700));
     Ok(eval::render::encode_png(&eval::render::stack(

@@ -211,7 +211,6 @@ impl<'m> Solver<'m> {
     /// frame end (see [`BodyCollider::advance`] and [`BodyCollider::hold`]).
     pub fn frame(&mut self, body: &BodyCollider) -> FrameStats {
         let c = self.config.clone();
-        let h = c.substep_dt();
         let frame_dt = c.frame_dt();
         self.x_frame.copy_from_slice(&self.x);
 
@@ -266,11 +265,7 @@ impl<'m> Solver<'m> {
         );
         self.times.detect += t0.elapsed().as_secs_f64();
 
-        let g = Vec3A::from(c.gravity());
-        let damp = (-c.damping * h).exp();
         let interval = c.shear_bend_interval();
-        let h_slow = h * interval as f32;
-        let inv_h2_slow = 1.0 / (h_slow * h_slow);
         // The sweeps' buffer and the sweeps, lent to the team of this frame's substeps.
         let mut buf = std::mem::take(&mut self.buf);
         buf.resize(self.halves.len(), Vec3A::ZERO);
@@ -282,7 +277,7 @@ impl<'m> Solver<'m> {
         let team = Team::new([&slow, &sweep, stretch], b);
         let substeps = |this: &mut Self, a: &mut [Vec3A]| {
             for s in 0..c.substeps {
-                this.substep(s, &team, a, g, damp, inv_h2_slow);
+                this.substep(s, &team, a);
             }
         };
         if self.parallel && rayon::current_num_threads() > 1 {
@@ -321,21 +316,14 @@ impl<'m> Solver<'m> {
 
     /// Substep `s` of a frame (stages 2.1 to 2.4), the sweeps run by `team` on the buffer
     /// whose first half is `a`.
-    fn substep(
-        &mut self,
-        s: u32,
-        team: &Team<'_>,
-        a: &mut [Vec3A],
-        g: Vec3A,
-        damp: f32,
-        inv_h2_slow: f32,
-    ) {
-        let (h, vmax, interval) = (
-            self.config.substep_dt(),
-            self.config.max_velocity,
-            self.config.shear_bend_interval(),
-        );
-        let (substeps, stretch_iterations) = (self.config.substeps, self.config.stretch_iterations);
+    fn substep(&mut self, s: u32, team: &Team<'_>, a: &mut [Vec3A]) {
+        let c = &self.config;
+        let (h, vmax, interval) = (c.substep_dt(), c.max_velocity, c.shear_bend_interval());
+        let (substeps, stretch_iterations) = (c.substeps, c.stretch_iterations);
+        let g = Vec3A::from(c.gravity());
+        let damp = (-c.damping * h).exp();
+        let h_slow = h * interval as f32;
+        let inv_h2_slow = 1.0 / (h_slow * h_slow);
         // 2.1 predict
         let t = Instant::now();
         self.x_before.copy_from_slice(&self.x);
@@ -414,11 +402,11 @@ impl<'m> Solver<'m> {
     /// constraints), on this thread: the same bits as in a frame on one thread or two.
     pub fn solve_distance(&mut self) {
         self.buf.resize(self.halves.len(), Vec3A::ZERO);
-        let (a, b) = self.buf.split_at_mut(self.halves.split());
+        let split = self.halves.split();
+        let (a, b) = self.buf.split_at_mut(split);
         self.halves.gather(&self.x, a, b);
-        self.sweep.run_half(0, a);
-        self.sweep.run_half(1, b);
-        self.sweep.run_joins(a, b);
+        self.sweep.run(&mut self.buf);
+        let (a, b) = self.buf.split_at(split);
         self.halves.scatter(a, b, &mut self.x);
     }
 

@@ -248,10 +248,7 @@ impl Halves {
     /// Splits the particles at `rest`.
     pub fn new(rest: &[Vec3]) -> Self {
         let n = rest.len();
-        let (lo, hi) = rest.iter().fold(
-            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-            |(lo, hi), &p| (lo.min(p), hi.max(p)),
-        );
+        let (lo, hi) = crate::mesh::bounds(rest).unwrap_or_default();
         let extent = hi - lo;
         let axis = if extent.x >= extent.y && extent.x >= extent.z {
             0
