@@ -11,7 +11,7 @@ use crate::DatasetError;
 use crate::sampling::ShapeRanges;
 
 /// The built-in dataset configs, by name.
-pub const BUILT_IN: [(&str, &str); 7] = [
+pub const BUILT_IN: [(&str, &str); 11] = [
     ("tiny", include_str!("../../configs/datasets/tiny.toml")),
     ("small", include_str!("../../configs/datasets/small.toml")),
     (
@@ -29,6 +29,22 @@ pub const BUILT_IN: [(&str, &str); 7] = [
     (
         "cpu-reference-jeans",
         include_str!("../../configs/datasets/cpu-reference-jeans.toml"),
+    ),
+    (
+        "cpu-repro-tshirt",
+        include_str!("../../configs/datasets/cpu-repro-tshirt.toml"),
+    ),
+    (
+        "cpu-repro-sweater",
+        include_str!("../../configs/datasets/cpu-repro-sweater.toml"),
+    ),
+    (
+        "cpu-repro-dress",
+        include_str!("../../configs/datasets/cpu-repro-dress.toml"),
+    ),
+    (
+        "cpu-repro-jeans",
+        include_str!("../../configs/datasets/cpu-repro-jeans.toml"),
     ),
     ("paper", include_str!("../../configs/datasets/paper.toml")),
 ];

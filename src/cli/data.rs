@@ -15,7 +15,8 @@ use super::Context;
 #[derive(Debug, Args)]
 pub struct GenArgs {
     /// Dataset config: a built-in name (tiny, small, cpu-reference, cpu-reference-sweater,
-    /// cpu-reference-dress, cpu-reference-jeans, paper) or a TOML file.
+    /// cpu-reference-dress, cpu-reference-jeans, cpu-repro-tshirt, cpu-repro-sweater,
+    /// cpu-repro-dress, cpu-repro-jeans, paper) or a TOML file.
     pub config: String,
     /// Output folder (created; running again resumes).
     #[arg(short, long, value_name = "DIR")]
