@@ -593,6 +593,76 @@ fn a_micrometre_disturbance_barely_moves_a_drape() {
     }
 }
 
+/// `drape data show`: one row per chosen sample, the printed DQS figure is the sample's
+/// Edist between warp and drape, bad choices are refused and write nothing.
+#[test]
+fn show_renders_the_chosen_samples_and_refuses_bad_ones() {
+    let (_, dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    let png = |name: &str| t.path().join(name);
+    let (ok, one) = run(drape()
+        .args(["data", "show"])
+        .arg(dir)
+        .args(["--split", "train", "--samples", "1", "-o"])
+        .arg(png("one.png")));
+    assert!(ok, "{one}");
+    let (ok, two) = run(drape()
+        .args(["data", "show"])
+        .arg(dir)
+        .args(["--split", "train", "--samples", "0,1", "-o"])
+        .arg(png("two.png")));
+    assert!(ok, "{two}");
+    // The DQS figure printed for train sample 1 is its warp-to-drape Edist.
+    let ds = Dataset::open(dir).unwrap();
+    let s = ds.samples(Split::Train).nth(1).unwrap().unwrap();
+    let edist = s
+        .row
+        .warped
+        .iter()
+        .zip(&s.row.draped)
+        .map(|(m, g)| m.distance(*g) as f64)
+        .sum::<f64>()
+        / s.row.warped.len() as f64
+        * 100.0;
+    let line = one.lines().find(|l| l.starts_with("train #1")).unwrap();
+    assert!(
+        line.contains(&format!("sample {}", s.row.id))
+            && line.contains(&format!("drape {edist:.2} cm")),
+        "{line} (Edist {edist:.2} cm)"
+    );
+    assert!(
+        two.contains("train #0") && two.contains("train #1"),
+        "{two}"
+    );
+    // PNG heights: two rows stacked are twice one row.
+    let height = |p: &Path| {
+        let b = std::fs::read(p).unwrap();
+        assert_eq!(&b[1..4], b"PNG");
+        u32::from_be_bytes(b[20..24].try_into().unwrap())
+    };
+    assert_eq!(height(&png("two.png")), 2 * height(&png("one.png")));
+    for (args, says) in [
+        (vec!["--samples", "99"], "converged samples"),
+        (vec!["--split", "nope"], "no split named"),
+    ] {
+        let out = png("refused.png");
+        let (ok, text) = run(drape()
+            .args(["data", "show"])
+            .arg(dir)
+            .args(&args)
+            .arg("-o")
+            .arg(&out));
+        assert!(!ok && text.contains(says), "{args:?}: {text}");
+        assert!(!out.exists(), "{args:?} wrote {}", out.display());
+    }
+    let (ok, text) = run(drape()
+        .args(["data", "show"])
+        .arg(dir)
+        .args(["-o"])
+        .arg(png("x.jpg")));
+    assert!(!ok && text.contains("expected a .png"), "{text}");
+}
+
 /// `sizes = true`: each body wears the size its measurements pick from the garment's chart,
 /// the record names it, the drape starts from that size, and `drape data info` counts the
 /// sizes; a config without sizes keeps its hash; an ungraded garment is refused.

@@ -1,6 +1,6 @@
 //! `drape gen` and `drape data info|verify|merge|sensitivity`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use clap::{Args, Subcommand};
@@ -77,6 +77,22 @@ pub enum DataCommand {
         /// drape differently by up to 15 mm); the merged manifest then records no program.
         #[arg(long)]
         mixed_builds: bool,
+    },
+    /// Look at samples: each row renders the simulator's drape G on its body (left) beside
+    /// the DQS warp M (right) coloured by its distance to G (the network's input and the
+    /// displacement it must learn), and prints the sample's body, pose, size and report.
+    Show {
+        /// Dataset folder.
+        dir: PathBuf,
+        /// Split to take samples from: train, val or test.
+        #[arg(long, default_value = "test")]
+        split: String,
+        /// Positions within the split's converged samples (comma-separated, from 0).
+        #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
+        samples: Vec<usize>,
+        /// The PNG to write (rows stacked, one per sample).
+        #[arg(short, long, value_name = "FILE.png")]
+        output: PathBuf,
     },
     /// How much of a drape no input determines: redrape samples with the starting template
     /// moved by micrometres and measure Edist to the dataset's drape (the floor under a
@@ -261,14 +277,14 @@ fn mb(b: u64) -> String {
 #[allow(clippy::too_many_arguments)]
 fn sensitivity_run(
     ctx: &Context,
-    dir: &std::path::Path,
+    dir: &Path,
     split: &str,
     samples: usize,
     amplitudes: Vec<f32>,
     seed: u64,
-    run: Option<&std::path::Path>,
-    json: Option<&std::path::Path>,
-    render: Option<&std::path::Path>,
+    run: Option<&Path>,
+    json: Option<&Path>,
+    render: Option<&Path>,
 ) -> anyhow::Result<()> {
     use eval::sensitivity::{SensitivityOptions, measure};
     let split = Split::parse(split)?;
@@ -376,6 +392,79 @@ fn sensitivity_run(
     Ok(())
 }
 
+/// `drape data show`: renders and describes the chosen samples of a split.
+fn show_run(dir: &Path, split: &str, picks: &[usize], output: &Path) -> anyhow::Result<()> {
+    if output.extension().and_then(|e| e.to_str()) != Some("png") {
+        anyhow::bail!("-o {}: expected a .png file", output.display());
+    }
+    let split = Split::parse(split)?;
+    let data = Dataset::open(dir)?;
+    let n = data.count(split);
+    if picks.is_empty() {
+        anyhow::bail!("--samples: name at least one sample");
+    }
+    if let Some(bad) = picks.iter().find(|&&i| i >= n) {
+        anyhow::bail!(
+            "--samples {bad}: the {} split of {} has {n} converged samples (0 to {})",
+            split.name(),
+            dir.display(),
+            n.saturating_sub(1)
+        );
+    }
+    let last = *picks.iter().max().unwrap();
+    let mut found: Vec<Option<dataset::reader::Sample>> = vec![None; last + 1];
+    for (i, sample) in data.samples(split).take(last + 1).enumerate() {
+        if picks.contains(&i) {
+            found[i] = Some(sample?);
+        }
+    }
+    let mut rows = Vec::with_capacity(picks.len());
+    for &i in picks {
+        let s = found[i].as_ref().expect("read above");
+        let (row, rec) = (&s.row, &s.record);
+        let dqs_cm = eval::metrics::edist_cm(&row.warped, &row.draped);
+        let report = &rec.report;
+        let figure = |key: &str| report.get(key).and_then(|v| v.as_f64());
+        println!(
+            "{} #{i}: sample {} ({} pose, size {}), DQS warp to drape {:.2} cm; {} frames, p95 strain {}, {:.2} s",
+            split.name(),
+            row.id,
+            rec.family,
+            rec.size.as_deref().unwrap_or("one size"),
+            dqs_cm,
+            match (figure("morph_frames"), figure("settle_frames")) {
+                (Some(m), Some(r)) => format!("{m:.0}+{r:.0}"),
+                _ => "?".into(),
+            },
+            report
+                .get("strain")
+                .and_then(|s| s.get("p95"))
+                .and_then(|v| v.as_f64())
+                .map_or("?".into(), |p| format!("{:.2}%", 100.0 * p)),
+            rec.seconds
+        );
+        let (img, _) = eval::report::sample_render(
+            &row.body,
+            &data.statics.body_triangles,
+            &data.statics.garment_triangles,
+            &row.draped,
+            &row.warped,
+            &format!(
+                "sample {}: drape (left); warp M (right), distance to the drape (cm), mean {dqs_cm:.2}",
+                row.id
+            ),
+        )?;
+        rows.push(img);
+    }
+    let img = eval::render::stack(&rows, [255, 255, 255]);
+    std::fs::write(output, eval::render::encode_png(&img)?)
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", output.display()))?;
+    let n = picks.len();
+    let plural = if n == 1 { "" } else { "s" };
+    println!("{n} sample{plural} -> {}", output.display());
+    Ok(())
+}
+
 /// Runs `drape data`.
 pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
     match args.command {
@@ -399,6 +488,12 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
             json.as_deref(),
             render.as_deref(),
         ),
+        DataCommand::Show {
+            dir,
+            split,
+            samples,
+            output,
+        } => show_run(&dir, &split, &samples, &output),
         DataCommand::Info { dir, json } => {
             let ds = Dataset::open(&dir)?;
             let i = inspect::info(&ds)?;
