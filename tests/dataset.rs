@@ -102,6 +102,30 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     assert!(ok, "{text}");
     assert!(text.contains("test pose to nearest train"), "{text}");
     assert!(text.contains("friction garment-body: 0.3"), "{text}");
+    // The DQS baseline of the test split: the mean of its samples' warp-to-drape Edist.
+    let edists: Vec<f64> = ds
+        .samples(Split::Test)
+        .map(|s| {
+            let r = s.unwrap().row;
+            let sum: f64 = r
+                .warped
+                .iter()
+                .zip(&r.draped)
+                .map(|(m, g)| m.distance(*g) as f64)
+                .sum();
+            100.0 * sum / r.warped.len() as f64
+        })
+        .collect();
+    let mean = edists.iter().sum::<f64>() / edists.len() as f64;
+    let line = text
+        .lines()
+        .find(|l| l.contains("DQS warp to drape, test"))
+        .unwrap_or_else(|| panic!("{text}"));
+    assert!(
+        line.contains(&format!("mean {mean:.2} cm")) && mean > 0.5,
+        "{line}: expected mean {mean:.2} cm"
+    );
+    assert!(text.contains("DQS warp to drape, train"), "{text}");
     // Every drape records how far its neckline ended below the warp's: T-shirts hang from
     // the shoulders, none slid (over 25 cm would have failed it).
     let line = text

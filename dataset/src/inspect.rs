@@ -76,6 +76,9 @@ pub struct Info {
     /// Each converged test pose's distance to the nearest converged training pose: mean
     /// over bones of the rotation angle between them (degrees).
     pub test_to_train_pose_deg: Stats,
+    /// Edist between the DQS warp M and the drape G (cm), per sample, of the training and
+    /// the test split: the DQS baseline, and how far a network has to move M.
+    pub dqs_edist_cm: BTreeMap<Split, Stats>,
 }
 
 /// Mean rotation angle (degrees) between two poses, over bones.
@@ -101,10 +104,24 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
         v.as_f64().unwrap_or(f64::NAN)
     };
     let stat = |path: &[&str]| Stats::of(ok.iter().map(|s| get(s, path)).collect());
-    let poses = |split: Split| -> Result<Vec<Vec<Quat>>, DatasetError> {
-        ds.samples(split).map(|s| s.map(|s| s.row.pose)).collect()
+    // Each sample's pose and DQS Edist (cm), one shard in memory at a time.
+    let read = |split: Split| -> Result<(Vec<Vec<Quat>>, Vec<f64>), DatasetError> {
+        let mut poses = Vec::new();
+        let mut dqs = Vec::new();
+        for s in ds.samples(split) {
+            let row = s?.row;
+            let sum: f64 = row
+                .warped
+                .iter()
+                .zip(&row.draped)
+                .map(|(m, g)| m.distance(*g) as f64)
+                .sum();
+            dqs.push(100.0 * sum / row.warped.len().max(1) as f64);
+            poses.push(row.pose);
+        }
+        Ok((poses, dqs))
     };
-    let (train, test) = (poses(Split::Train)?, poses(Split::Test)?);
+    let ((train, train_dqs), (test, test_dqs)) = (read(Split::Train)?, read(Split::Test)?);
     let nearest: Vec<f64> = test
         .iter()
         .filter_map(|t| {
@@ -141,6 +158,11 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
         },
         seconds: Stats::of(ok.iter().map(|s| s.seconds).collect()),
         test_to_train_pose_deg: Stats::of(nearest),
+        dqs_edist_cm: [(Split::Train, train_dqs), (Split::Test, test_dqs)]
+            .into_iter()
+            .filter(|(_, v)| !v.is_empty())
+            .map(|(s, v)| (s, Stats::of(v)))
+            .collect(),
     })
 }
 

@@ -586,6 +586,14 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 1.0,
                 " deg",
             );
+            for (split, d) in &i.dqs_edist_cm {
+                st(
+                    &format!("DQS warp to drape, {}", split.name()),
+                    d,
+                    1.0,
+                    " cm",
+                );
+            }
             Ok(())
         }
         DataCommand::Verify { dir } => {
