@@ -658,6 +658,11 @@ fn show_renders_the_chosen_samples_and_refuses_bad_ones() {
         two.contains("train #0") && two.contains("train #1"),
         "{two}"
     );
+    // The simulator's report is read: frames as morph+settle, strain as a percentage.
+    assert!(
+        !line.contains('?') && line.contains(" frames, p95 strain ") && line.contains("%, "),
+        "{line}"
+    );
     // PNG heights: two rows stacked are twice one row.
     let height = |p: &Path| {
         let b = std::fs::read(p).unwrap();
@@ -685,6 +690,7 @@ fn show_renders_the_chosen_samples_and_refuses_bad_ones() {
         .args(["-o"])
         .arg(png("x.jpg")));
     assert!(!ok && text.contains("expected a .png"), "{text}");
+    assert!(!png("x.jpg").exists());
 }
 
 /// `sizes = true`: each body wears the size its measurements pick from the garment's chart,

@@ -286,4 +286,23 @@ samples = 1
     .unwrap();
     let (ok, text) = reproduce("zero.toml");
     assert!(!ok && text.contains("epochs must be at least 1"), "{text}");
+    // A plan whose dataset config changed after its data were made is refused, not run on
+    // the old data.
+    let tiny_data = std::fs::read_to_string("configs/datasets/tiny.toml").unwrap();
+    assert!(tiny_data.contains("seed = 1\n"));
+    let other = dir.join("tiny-seed-2.toml");
+    std::fs::write(&other, tiny_data.replace("seed = 1\n", "seed = 2\n")).unwrap();
+    std::fs::write(
+        dir.join("other-data.toml"),
+        plan(1.0).replace(
+            "config = \"tiny\"",
+            &format!("config = \"{}\"", other.display()),
+        ),
+    )
+    .unwrap();
+    let (ok, text) = reproduce("other-data.toml");
+    assert!(
+        !ok && text.contains("holds dataset \"tiny\"") && text.contains("another working folder"),
+        "{text}"
+    );
 }

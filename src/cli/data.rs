@@ -1,4 +1,4 @@
-//! `drape gen` and `drape data info|verify|merge|sensitivity`.
+//! `drape gen` and `drape data info|show|verify|merge|sensitivity`.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -394,7 +394,11 @@ fn sensitivity_run(
 
 /// `drape data show`: renders and describes the chosen samples of a split.
 fn show_run(dir: &Path, split: &str, picks: &[usize], output: &Path) -> anyhow::Result<()> {
-    if output.extension().and_then(|e| e.to_str()) != Some("png") {
+    if !output
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
         anyhow::bail!("-o {}: expected a .png file", output.display());
     }
     let split = Split::parse(split)?;
@@ -402,6 +406,13 @@ fn show_run(dir: &Path, split: &str, picks: &[usize], output: &Path) -> anyhow::
     let n = data.count(split);
     if picks.is_empty() {
         anyhow::bail!("--samples: name at least one sample");
+    }
+    if n == 0 {
+        anyhow::bail!(
+            "the {} split of {} has no converged samples",
+            split.name(),
+            dir.display()
+        );
     }
     if let Some(bad) = picks.iter().find(|&&i| i >= n) {
         anyhow::bail!(
@@ -413,14 +424,22 @@ fn show_run(dir: &Path, split: &str, picks: &[usize], output: &Path) -> anyhow::
     }
     let last = *picks.iter().max().unwrap();
     let mut found: Vec<Option<dataset::reader::Sample>> = vec![None; last + 1];
+    // Every sample up to the last pick is read, so that a shard that cannot be read stops
+    // here instead of shifting the positions after it.
     for (i, sample) in data.samples(split).take(last + 1).enumerate() {
+        let sample = sample?;
         if picks.contains(&i) {
-            found[i] = Some(sample?);
+            found[i] = Some(sample);
         }
     }
     let mut rows = Vec::with_capacity(picks.len());
     for &i in picks {
-        let s = found[i].as_ref().expect("read above");
+        let s = found[i].as_ref().ok_or_else(|| {
+            anyhow::anyhow!(
+                "sample #{i} of the {} split could not be read",
+                split.name()
+            )
+        })?;
         let (row, rec) = (&s.row, &s.record);
         let dqs_cm = eval::metrics::edist_cm(&row.warped, &row.draped);
         let report = &rec.report;

@@ -233,6 +233,26 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         // finished dataset only checks it again.
         let name = format!("gen {}", d.key);
         let manifest = || dir.join("manifest.json").exists();
+        // A finished dataset of another config (a plan edited after its data were made)
+        // is never used in its place.
+        if manifest() {
+            let want = dataset::config::DatasetConfig::load(&d.config)?.hash();
+            let path = dir.join("manifest.json");
+            let bytes = std::fs::read(&path)
+                .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+            let m = dataset::manifest::Manifest::parse(&path, &bytes)?;
+            if m.config_sha256 != want {
+                anyhow::bail!(
+                    "{} holds dataset {:?} (config sha256 {}), but the plan's {:?} for {} resolves to config sha256 {}: use another working folder (-o) or remove that dataset",
+                    dir.display(),
+                    m.name,
+                    &m.config_sha256[..12],
+                    d.config,
+                    d.key,
+                    &want[..12]
+                );
+            }
+        }
         let passed = || lock(clock).ledger.done.get(&name) == Some(&true);
         stage(&name, &passed, &manifest, &mut || {
             let mut a: Vec<&std::ffi::OsStr> = vec![
