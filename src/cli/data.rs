@@ -442,8 +442,7 @@ fn show_run(dir: &Path, split: &str, picks: &[usize], output: &Path) -> anyhow::
         })?;
         let (row, rec) = (&s.row, &s.record);
         let dqs_cm = eval::metrics::edist_cm(&row.warped, &row.draped);
-        let report = &rec.report;
-        let figure = |key: &str| report.get(key).and_then(|v| v.as_f64());
+        let figure = |path: &str| rec.report.pointer(path).and_then(|v| v.as_f64());
         println!(
             "{} #{i}: sample {} ({} pose, size {}), DQS warp to drape {:.2} cm; {} frames, p95 strain {}, {:.2} s",
             split.name(),
@@ -451,15 +450,11 @@ fn show_run(dir: &Path, split: &str, picks: &[usize], output: &Path) -> anyhow::
             rec.family,
             rec.size.as_deref().unwrap_or("one size"),
             dqs_cm,
-            match (figure("morph_frames"), figure("settle_frames")) {
+            match (figure("/morph_frames"), figure("/settle_frames")) {
                 (Some(m), Some(r)) => format!("{m:.0}+{r:.0}"),
                 _ => "?".into(),
             },
-            report
-                .get("strain")
-                .and_then(|s| s.get("p95"))
-                .and_then(|v| v.as_f64())
-                .map_or("?".into(), |p| format!("{:.2}%", 100.0 * p)),
+            figure("/strain/p95").map_or("?".into(), |p| format!("{:.2}%", 100.0 * p)),
             rec.seconds
         );
         let (img, _) = eval::report::sample_render(
