@@ -220,6 +220,40 @@ samples = 1
     assert_eq!(again["seconds"], ledger["seconds"]);
     assert_eq!(again["machine_seconds"], ledger["machine_seconds"]);
 
+    // --status reads the folder and writes nothing: every stage done, the runs' epochs
+    // and validation Edist, no hours left.
+    let before = std::fs::read(out.join("stages.json")).unwrap();
+    let (ok, status) = run(drape()
+        .arg("reproduce")
+        .arg(dir.join("plan.toml"))
+        .arg("-o")
+        .arg(&out)
+        .arg("--status"));
+    assert!(ok, "{status}");
+    assert_eq!(std::fs::read(out.join("stages.json")).unwrap(), before);
+    let row = |stage: &str| row_in(&status, stage);
+    assert!(row("gen tshirt").contains("| done: "), "{status}");
+    for r in ["tshirt-local", "tshirt-naive"] {
+        assert!(
+            row(&format!("train {r}")).contains("| done: 3 epochs, "),
+            "{status}"
+        );
+    }
+    assert!(row("eval").ends_with("| done |"), "{status}");
+    assert!(status.contains("about 0.0 machine hours left"), "{status}");
+    // A folder where nothing has run says so.
+    let (ok, status) = run(drape()
+        .arg("reproduce")
+        .arg(dir.join("plan.toml"))
+        .arg("-o")
+        .arg(dir.join("nothing"))
+        .arg("--status"));
+    assert!(ok && status.contains("nothing has run yet"), "{status}");
+    assert!(
+        row_in(&status, "train tshirt-local-rq").contains("not started (fine-tunes tshirt-local)")
+    );
+    assert!(!dir.join("nothing").exists());
+
     // A plan may name its report's folder; --docs overrides it.
     std::fs::write(
         dir.join("own.toml"),
@@ -305,4 +339,13 @@ samples = 1
         !ok && text.contains("holds dataset \"tiny\"") && text.contains("another working folder"),
         "{text}"
     );
+}
+
+/// The table row of `stage` in `drape reproduce --status` output.
+fn row_in(status: &str, stage: &str) -> String {
+    status
+        .lines()
+        .find(|l| l.starts_with(&format!("| {stage} |")))
+        .unwrap_or_else(|| panic!("{stage} missing: {status}"))
+        .to_string()
 }

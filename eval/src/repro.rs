@@ -10,6 +10,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::evaluate::EvalError;
 
+pub mod status;
+
 /// A dataset of the plan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

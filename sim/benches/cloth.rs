@@ -74,15 +74,20 @@ fn cook_10k_tube() -> ClothModel {
 }
 
 /// Moving the body to new positions: pseudo-normals and a refit of the BVH's swept boxes
-/// over 26,756 triangles.
-#[divan::bench(sample_count = 50)]
-fn body_advance_and_refit(bencher: divan::Bencher) {
+/// over 26,756 triangles; on one thread, and on two (as in a drape with `parallel`).
+#[divan::bench(args = [1, 2], sample_count = 50)]
+fn body_advance_and_refit(bencher: divan::Bencher, threads: usize) {
     let s = scene();
     let mut body = BodyCollider::new(&s.body, &s.model.triangles, 0.01);
+    body.set_parallel(threads > 1);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
     let mut flip = false;
     bencher.bench_local(|| {
         flip = !flip;
-        body.advance(if flip { &s.posed } else { &s.body });
+        pool.install(|| body.advance(if flip { &s.posed } else { &s.body }));
     });
 }
 

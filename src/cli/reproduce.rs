@@ -31,8 +31,12 @@ pub struct ReproduceArgs {
     #[arg(long, value_name = "DIR")]
     docs: Option<PathBuf>,
     /// Only write the report from what is finished; run nothing.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "status")]
     report_only: bool,
+    /// Print where the plan stands (stages, hours, epochs, validation Edist, hours left)
+    /// and exit; writes nothing, so it can run beside a running `drape reproduce`.
+    #[arg(long)]
+    status: bool,
 }
 
 /// A child `drape` running `args` with `threads` worker threads (all cores if `None`).
@@ -139,8 +143,19 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         .output
         .clone()
         .unwrap_or_else(|| PathBuf::from("runs").join(format!("repro-{}", plan.name)));
-    std::fs::create_dir_all(&out)?;
     let ledger_path = out.join("stages.json");
+    if args.status {
+        if !out.is_dir() {
+            println!("nothing has run yet: no working folder {}", out.display());
+        }
+        let ledger = Ledger::load(&ledger_path)?;
+        print!(
+            "{}",
+            eval::repro::status::status(&plan, &args.plan, &out, &ledger)
+        );
+        return Ok(());
+    }
+    std::fs::create_dir_all(&out)?;
     let mut ledger = Ledger::load(&ledger_path)?;
     // An earlier version kept running stages' time in a heartbeat file: fold it in once.
     let running_path = out.join("stages.running.json");

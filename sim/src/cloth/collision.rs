@@ -14,6 +14,7 @@ use std::collections::HashMap;
 use glam::{Vec3, Vec3A};
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::Bvh2;
+use rayon::prelude::*;
 
 /// Which part of a triangle a closest point lies on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -122,8 +123,24 @@ pub struct BodyCollider {
     bvh: Bvh2,
     /// Each triangle's swept box, inflated by the margin.
     boxes: Vec<Aabb>,
+    /// The corners around each vertex, as `3 * triangle + corner` in triangle order:
+    /// vertex `v`'s are `corners[corner_start[v]..corner_start[v + 1]]`.
+    corners: Vec<u32>,
+    corner_start: Vec<u32>,
     margin: f32,
     travel: f32,
+    /// Move the body (pseudo-normals, swept boxes) on rayon's threads.
+    parallel: bool,
+}
+
+/// `out[i] = f(i)` for every `i`, on rayon's threads or on this one. Each item is computed
+/// alone, so the bits are the same either way.
+fn fill<T: Send>(parallel: bool, out: &mut [T], f: impl Fn(usize) -> T + Sync) {
+    if parallel {
+        out.par_iter_mut().enumerate().for_each(|(i, o)| *o = f(i));
+    } else {
+        out.iter_mut().enumerate().for_each(|(i, o)| *o = f(i));
+    }
 }
 
 impl std::fmt::Debug for BodyCollider {
@@ -174,6 +191,24 @@ impl BodyCollider {
             obvhs::BvhBuildParams::fast_build(),
             &mut build_time,
         );
+        // Corners grouped by vertex, each group in triangle order (a counting sort).
+        let mut corner_start = vec![0u32; vertices.len() + 1];
+        for t in triangles {
+            for &i in t {
+                corner_start[i as usize + 1] += 1;
+            }
+        }
+        for v in 0..vertices.len() {
+            corner_start[v + 1] += corner_start[v];
+        }
+        let mut next = corner_start.clone();
+        let mut corners = vec![0u32; 3 * triangles.len()];
+        for (f, t) in triangles.iter().enumerate() {
+            for (k, &i) in t.iter().enumerate() {
+                corners[next[i as usize] as usize] = 3 * f as u32 + k as u32;
+                next[i as usize] += 1;
+            }
+        }
         let mut me = Self {
             triangles: triangles.to_vec(),
             tri_edges,
@@ -184,13 +219,24 @@ impl BodyCollider {
             normals_end: PseudoNormals::default(),
             bvh,
             boxes: vec![Aabb::INVALID; triangles.len()],
+            corners,
+            corner_start,
             margin,
             travel: 0.0,
+            parallel: false,
         };
-        me.normals_end = me.pseudo_normals(&me.end);
-        me.normals_start = me.normals_end.clone();
+        let mut normals = PseudoNormals::default();
+        me.pseudo_normals(&me.end, &mut normals);
+        me.normals_start = normals.clone();
+        me.normals_end = normals;
         me.refit();
         me
+    }
+
+    /// Moves the body on rayon's threads (`true`) or on the calling one (the default). The
+    /// positions, normals and boxes are the same to the bit either way.
+    pub fn set_parallel(&mut self, parallel: bool) {
+        self.parallel = parallel;
     }
 
     /// Body positions at the end of the frame.
@@ -205,7 +251,9 @@ impl BodyCollider {
         std::mem::swap(&mut self.start, &mut self.end);
         self.end.copy_from_slice(next);
         std::mem::swap(&mut self.normals_start, &mut self.normals_end);
-        self.normals_end = self.pseudo_normals(&self.end);
+        let mut normals = std::mem::take(&mut self.normals_end);
+        self.pseudo_normals(&self.end, &mut normals);
+        self.normals_end = normals;
         self.travel = self
             .start
             .iter()
@@ -233,53 +281,70 @@ impl BodyCollider {
 
     fn refit(&mut self) {
         let m = Vec3A::splat(self.margin);
-        for (t, b) in self.triangles.iter().zip(self.boxes.iter_mut()) {
+        let (triangles, start, end) = (&self.triangles, &self.start, &self.end);
+        fill(self.parallel, &mut self.boxes, |f| {
             let mut bb = Aabb::INVALID;
-            for &i in t {
-                bb.extend(to_a(self.start[i as usize]));
-                bb.extend(to_a(self.end[i as usize]));
+            for &i in &triangles[f] {
+                bb.extend(to_a(start[i as usize]));
+                bb.extend(to_a(end[i as usize]));
             }
-            *b = Aabb::new(bb.min - m, bb.max + m);
-        }
-        for node in self.bvh.nodes.iter_mut() {
+            Aabb::new(bb.min - m, bb.max + m)
+        });
+        let boxes = &self.boxes;
+        let Bvh2 {
+            nodes,
+            primitive_indices,
+            ..
+        } = &mut self.bvh;
+        let leaf = |node: &mut obvhs::bvh2::node::Bvh2Node| {
             if node.is_leaf() {
                 let mut bb = Aabb::INVALID;
                 for k in node.first_index..node.first_index + node.prim_count {
-                    bb = bb.union(&self.boxes[self.bvh.primitive_indices[k as usize] as usize]);
+                    bb = bb.union(&boxes[primitive_indices[k as usize] as usize]);
                 }
                 node.set_aabb(bb);
             }
+        };
+        if self.parallel {
+            nodes.par_iter_mut().for_each(leaf);
+        } else {
+            nodes.iter_mut().for_each(leaf);
         }
         self.bvh.refit_all();
     }
 
-    fn pseudo_normals(&self, x: &[Vec3]) -> PseudoNormals {
-        let face: Vec<Vec3> = self
-            .triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| x[i as usize]);
-                (b - a).cross(c - a).normalize_or_zero()
-            })
-            .collect();
-        let edge = self
-            .edge_faces
-            .iter()
-            .map(|[f, g]| (face[*f as usize] + face[*g as usize]).normalize_or_zero())
-            .collect();
-        let mut vertex = vec![Vec3::ZERO; x.len()];
-        for (t, n) in self.triangles.iter().zip(&face) {
-            for k in 0..3 {
+    /// Angle-weighted pseudo-normals of the body at positions `x`, into `out`. Each
+    /// vertex sums its corners' angle-weighted face normals in triangle order, so the
+    /// bits do not depend on the thread count.
+    fn pseudo_normals(&self, x: &[Vec3], out: &mut PseudoNormals) {
+        let par = self.parallel;
+        let tris = &self.triangles;
+        out.face.resize(tris.len(), Vec3::ZERO);
+        fill(par, &mut out.face, |f| {
+            let [a, b, c] = tris[f].map(|i| x[i as usize]);
+            (b - a).cross(c - a).normalize_or_zero()
+        });
+        let face = &out.face;
+        out.edge.resize(self.edge_faces.len(), Vec3::ZERO);
+        fill(par, &mut out.edge, |e| {
+            let [f, g] = self.edge_faces[e];
+            (face[f as usize] + face[g as usize]).normalize_or_zero()
+        });
+        out.vertex.resize(x.len(), Vec3::ZERO);
+        let (corners, corner_start) = (&self.corners, &self.corner_start);
+        fill(par, &mut out.vertex, |v| {
+            let mut sum = Vec3::ZERO;
+            let range = corner_start[v] as usize..corner_start[v + 1] as usize;
+            for &c in &corners[range] {
+                let (f, k) = (c as usize / 3, c as usize % 3);
+                let t = tris[f];
                 let p = x[t[k] as usize];
                 let e1 = (x[t[(k + 1) % 3] as usize] - p).normalize_or_zero();
                 let e2 = (x[t[(k + 2) % 3] as usize] - p).normalize_or_zero();
-                vertex[t[k] as usize] += *n * e1.dot(e2).clamp(-1.0, 1.0).acos();
+                sum += face[f] * e1.dot(e2).clamp(-1.0, 1.0).acos();
             }
-        }
-        for v in &mut vertex {
-            *v = v.normalize_or_zero();
-        }
-        PseudoNormals { face, edge, vertex }
+            sum.normalize_or_zero()
+        });
     }
 
     /// Position of a contact's point on the body at time `t` in [0, 1] of the frame.
@@ -538,5 +603,69 @@ mod tests {
         assert!((hit.distance - 0.05).abs() < 0.01, "{}", hit.distance);
         let half = body.point_at(&hit.contact, 0.5);
         assert!((half.x - 0.6).abs() < 0.01, "{half}");
+    }
+
+    #[test]
+    fn moving_the_body_on_two_threads_gives_the_same_bits() {
+        // A lumpy sphere (so the vertices differ in valence and angles) moved and deformed;
+        // the body moved on two threads against one, and the vertex pseudo-normals against
+        // a plain scatter over the triangles, the order a sum over triangles takes.
+        let s = primitives::uv_sphere(Vec3::ZERO, 0.5, 48, 24);
+        let lumpy = |t: f32| -> Vec<Vec3> {
+            s.vertices
+                .iter()
+                .map(|v| *v * (1.0 + 0.2 * (7.0 * v.x + 3.0 * t).sin() * v.y) + Vec3::X * t)
+                .collect()
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let mut one = BodyCollider::new(&lumpy(0.0), &s.triangles, 0.01);
+        let mut two = one.clone();
+        two.set_parallel(true);
+        for k in 1..4 {
+            let next = lumpy(0.1 * k as f32);
+            one.advance(&next);
+            pool.install(|| two.advance(&next));
+        }
+        pool.install(|| two.hold());
+        one.hold();
+        let bits = |v: &[Vec3]| {
+            v.iter()
+                .map(|p| p.to_array().map(f32::to_bits))
+                .collect::<Vec<_>>()
+        };
+        for (a, b) in [
+            (&one.normals_end, &two.normals_end),
+            (&one.normals_start, &two.normals_start),
+        ] {
+            assert_eq!(bits(&a.face), bits(&b.face));
+            assert_eq!(bits(&a.edge), bits(&b.edge));
+            assert_eq!(bits(&a.vertex), bits(&b.vertex));
+        }
+        let boxes = |c: &BodyCollider| {
+            c.bvh
+                .nodes
+                .iter()
+                .map(|n| [n.aabb().min, n.aabb().max].map(|v| v.to_array().map(f32::to_bits)))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(boxes(&one), boxes(&two));
+        let x = one.positions();
+        let mut scatter = vec![Vec3::ZERO; x.len()];
+        for (t, n) in one.triangles.iter().zip(&one.normals_end.face) {
+            for k in 0..3 {
+                let p = x[t[k] as usize];
+                let e1 = (x[t[(k + 1) % 3] as usize] - p).normalize_or_zero();
+                let e2 = (x[t[(k + 2) % 3] as usize] - p).normalize_or_zero();
+                scatter[t[k] as usize] += *n * e1.dot(e2).clamp(-1.0, 1.0).acos();
+            }
+        }
+        let scatter: Vec<Vec3> = scatter.iter().map(|v| v.normalize_or_zero()).collect();
+        assert_eq!(bits(&scatter), bits(&one.normals_end.vertex));
+        // And they point outwards on the sphere's lumps, as a pseudo-normal must.
+        let c = x.iter().copied().sum::<Vec3>() / x.len() as f32;
+        assert!(x.iter().zip(&scatter).all(|(p, n)| n.dot(*p - c) > 0.0));
     }
 }

@@ -656,6 +656,7 @@ pub fn drape(
     let t_all = Instant::now();
     let t = Instant::now();
     let mut body = BodyCollider::new(&motion.at(0), motion.triangles(), config.margin);
+    body.set_parallel(parallel && rayon::current_num_threads() > 1);
     let mut solver = Solver::new(model, config, start.to_vec());
     solver.parallel = parallel;
     solver.times.body += t.elapsed().as_secs_f64();

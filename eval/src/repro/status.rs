@@ -1,0 +1,321 @@
+//! `drape reproduce PLAN --status`: where a reproduction stands, read from its working
+//! folder without writing to it (safe beside a running `drape reproduce`).
+//!
+//! Per stage: planned and measured hours (the ledger, `stages.json`), and what it has
+//! done: a dataset's drapes, a run's epochs and validation Edist (its `steps.csv` and
+//! `log.csv`) with the hours it will take in all at the pace measured so far.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use super::{Ledger, Plan, fmt};
+
+/// How far a training run has come, from its run folder.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunProgress {
+    /// Epochs the run trains.
+    pub epochs: usize,
+    /// Epochs finished (with a line in `log.csv`).
+    pub epochs_done: usize,
+    /// Optimiser steps so far.
+    pub steps: u64,
+    /// Steps of one epoch, known once the first epoch is over.
+    pub steps_per_epoch: Option<u64>,
+    /// Training hours so far (all sessions).
+    pub hours: f64,
+    /// Validation Edist (cm) of the last finished epoch, and the lowest.
+    pub last_val_cm: Option<f64>,
+    /// The lowest validation Edist (cm) so far.
+    pub best_val_cm: Option<f64>,
+    /// All epochs done.
+    pub finished: bool,
+}
+
+impl RunProgress {
+    /// Reads run folder `dir` of a run of `epochs` epochs; None before its first step.
+    pub fn read(dir: &Path, epochs: usize) -> Option<Self> {
+        let steps = std::fs::read_to_string(dir.join("steps.csv")).ok()?;
+        // epoch, batch, step, seconds, ...: lines redone after an interruption repeat an
+        // (epoch, batch); the last line is the latest.
+        let rows: Vec<(usize, u64, u64, f64)> = steps
+            .lines()
+            .filter_map(|l| {
+                let mut f = l.split(',');
+                Some((
+                    f.next()?.parse().ok()?,
+                    f.next()?.parse().ok()?,
+                    f.next()?.parse().ok()?,
+                    f.next()?.parse().ok()?,
+                ))
+            })
+            .collect();
+        let &(_, _, step, seconds) = rows.last()?;
+        let steps_per_epoch = rows
+            .iter()
+            .any(|r| r.0 > 0)
+            .then(|| rows.iter().filter(|r| r.0 == 0).map(|r| r.1).max())
+            .flatten();
+        let log = std::fs::read_to_string(dir.join("log.csv")).unwrap_or_default();
+        let mut epochs_done = 0;
+        let mut vals = Vec::new();
+        for l in log.lines() {
+            let f: Vec<&str> = l.split(',').collect();
+            let Some(epoch) = f.first().and_then(|e| e.parse::<usize>().ok()) else {
+                continue;
+            };
+            epochs_done = epochs_done.max(epoch + 1);
+            if f.get(1) == Some(&"val") {
+                // The last column is Edist in cm (learn::train::Terms::HEADER).
+                if let Some(e) = f.last().and_then(|e| e.parse::<f64>().ok()) {
+                    vals.push(e);
+                }
+            }
+        }
+        let finished = learn::train::State::load(dir)
+            .ok()
+            .flatten()
+            .is_some_and(|s| s.finished);
+        Some(Self {
+            epochs,
+            epochs_done,
+            steps: step,
+            steps_per_epoch,
+            hours: seconds / 3600.0,
+            last_val_cm: vals.last().copied(),
+            best_val_cm: vals.iter().copied().reduce(f64::min),
+            finished,
+        })
+    }
+
+    /// Training hours the whole run takes at the pace so far (None until one epoch is
+    /// over, when the steps of an epoch are known).
+    pub fn projected_hours(&self) -> Option<f64> {
+        if self.finished {
+            return Some(self.hours);
+        }
+        let total = self.steps_per_epoch? * self.epochs as u64;
+        (self.steps > 0 && total > 0).then(|| self.hours * total as f64 / self.steps as f64)
+    }
+}
+
+/// The epochs run `key` trains: the plan's override, else its run folder's resolved
+/// config, else the plan's config file.
+fn run_epochs(plan_epochs: Option<usize>, dir: &Path, config: &Path) -> Option<usize> {
+    plan_epochs.or_else(|| {
+        learn::config::TrainConfig::load(&dir.join("config.toml"))
+            .or_else(|_| learn::config::TrainConfig::load(config))
+            .ok()
+            .map(|c| c.epochs)
+    })
+}
+
+/// The status of plan `plan` (loaded from `plan_path`) in working folder `out`, as text:
+/// a table of the stages and an estimate of the machine hours left.
+pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> String {
+    let mut w = String::new();
+    let done = |name: &str| ledger.done.get(name).copied().unwrap_or(false);
+    let measured = |name: &str| ledger.seconds.get(name).map(|s| s / 3600.0);
+    writeln!(
+        w,
+        "plan {} ({}), working folder {}\nmachine hours measured: {:.2} of a budget of {} (planned in all: {:.2})\n",
+        plan.name,
+        plan_path.display(),
+        out.display(),
+        ledger.hours(),
+        plan.budget_hours,
+        plan.planned_machine_hours()
+    )
+    .unwrap();
+    writeln!(
+        w,
+        "| stage | planned h | measured h | state |\n|---|---|---|---|"
+    )
+    .unwrap();
+    // Machine hours left: stages not begun at their planned hours, runs under way at
+    // their measured pace; training hours shared among the runs that train at once.
+    let (mut left, mut left_training) = (0.0f64, 0.0f64);
+    for d in &plan.datasets {
+        let name = format!("gen {}", d.key);
+        let mp = out.join("data").join(&d.key).join("manifest.json");
+        let state = if done(&name) {
+            std::fs::read(&mp)
+                .ok()
+                .and_then(|b| dataset::manifest::Manifest::parse(&mp, &b).ok())
+                .map_or("done".into(), |m| {
+                    let t = m.tally_by_split();
+                    let n: usize = t.values().map(|x| x.samples).sum();
+                    let failed: usize = t.values().map(|x| x.failed).sum();
+                    format!("done: {n} drapes, {failed} failed")
+                })
+        } else {
+            left += d.planned_hours;
+            if measured(&name).is_some() {
+                "under way (resumes)".into()
+            } else {
+                "not started".into()
+            }
+        };
+        writeln!(
+            w,
+            "| {name} | {:.2} | {} | {state} |",
+            d.planned_hours,
+            fmt(measured(&name), 2)
+        )
+        .unwrap();
+    }
+    for r in &plan.runs {
+        let name = format!("train {}", r.key);
+        let dir = out.join("runs").join(&r.key);
+        let epochs = run_epochs(r.epochs, &dir, &r.config);
+        let progress = epochs.and_then(|e| RunProgress::read(&dir, e));
+        let state = match &progress {
+            Some(p) if p.finished => {
+                format!(
+                    "done: {} epochs, {:.2} h of training, validation Edist {} cm (best {})",
+                    p.epochs,
+                    p.hours,
+                    fmt(p.last_val_cm, 2),
+                    fmt(p.best_val_cm, 2)
+                )
+            }
+            Some(p) => {
+                let projected = p.projected_hours();
+                left_training +=
+                    projected.map_or((r.planned_hours - p.hours).max(0.0), |t| t - p.hours);
+                let mut s = format!(
+                    "epoch {} of {} under way, step {}",
+                    (p.epochs_done + 1).min(p.epochs),
+                    p.epochs,
+                    p.steps
+                );
+                if let Some(spe) = p.steps_per_epoch {
+                    write!(s, " of {}", spe * p.epochs as u64).unwrap();
+                }
+                write!(s, ", {:.2} h of training", p.hours).unwrap();
+                if p.last_val_cm.is_some() {
+                    write!(
+                        s,
+                        ", validation Edist {} cm (best {})",
+                        fmt(p.last_val_cm, 2),
+                        fmt(p.best_val_cm, 2)
+                    )
+                    .unwrap();
+                }
+                if let Some(t) = projected {
+                    write!(s, "; {t:.2} h in all at this pace").unwrap();
+                }
+                s
+            }
+            None => {
+                left_training += r.planned_hours;
+                match &r.init {
+                    Some(i) => format!("not started (fine-tunes {i})"),
+                    None => "not started".into(),
+                }
+            }
+        };
+        writeln!(
+            w,
+            "| {name} | {:.2} | {} | {state} |",
+            r.planned_hours,
+            fmt(measured(&name), 2)
+        )
+        .unwrap();
+    }
+    let evaluated = done("eval");
+    if !evaluated {
+        left += plan.eval_planned_hours;
+    }
+    writeln!(
+        w,
+        "| eval | {:.2} | {} | {} |",
+        plan.eval_planned_hours,
+        fmt(measured("eval"), 2),
+        if evaluated { "done" } else { "not finished" }
+    )
+    .unwrap();
+    left += left_training / plan.parallel_runs as f64;
+    writeln!(
+        w,
+        "\nabout {left:.1} machine hours left: the plan's hours for stages not begun, the pace so far for runs under way, {} training run(s) at once.",
+        plan.parallel_runs
+    )
+    .unwrap();
+    if ledger.hours() + left > plan.budget_hours {
+        writeln!(
+            w,
+            "that is more than the budget allows ({:.2} h left of {}): the plan stops before the stage that would start over it.",
+            (plan.budget_hours - ledger.hours()).max(0.0),
+            plan.budget_hours
+        )
+        .unwrap();
+    }
+    w
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEADER: &str =
+        "epoch,batch,step,seconds,total,vert,pen,norm,bend,rq8,rq16,rq32,mc,umc,edist_cm";
+
+    fn terms(edist: f64) -> String {
+        format!("1e-2,1e-3,1e-4,1e-2,1e-3,0,0,0,0,0,{edist}")
+    }
+
+    #[test]
+    fn a_run_under_way_is_projected_from_its_pace() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        // Two epochs of 4 steps done at 900 s each, then 2 steps of the third; the second
+        // epoch's last step was redone after an interruption.
+        let mut steps = String::from(HEADER) + "\n";
+        let mut step = 0;
+        for (epoch, batches) in [(0, 4), (1, 4)] {
+            for b in 1..=batches {
+                step += 1;
+                let s = step as f64 * 225.0;
+                steps += &format!("{epoch},{b},{step},{s},{}\n", terms(3.0));
+            }
+        }
+        steps += &format!("1,4,8,1800,{}\n", terms(3.0));
+        steps += &format!("2,1,9,2025,{}\n2,2,10,2250,{}\n", terms(3.0), terms(3.0));
+        std::fs::write(dir.join("steps.csv"), steps).unwrap();
+        let log = format!(
+            "epoch,split,samples,{}\n0,train,32,900,{}\n0,val,8,900,{}\n1,train,32,1800,{}\n1,val,8,1800,{}\n",
+            &HEADER[17..],
+            terms(3.1),
+            terms(2.9),
+            terms(2.8),
+            terms(3.0)
+        );
+        std::fs::write(dir.join("log.csv"), log).unwrap();
+        let p = RunProgress::read(dir, 6).unwrap();
+        assert_eq!(p.epochs_done, 2);
+        assert_eq!(p.steps, 10);
+        assert_eq!(p.steps_per_epoch, Some(4));
+        assert!((p.hours - 0.625).abs() < 1e-12);
+        assert_eq!(p.last_val_cm, Some(3.0));
+        assert_eq!(p.best_val_cm, Some(2.9));
+        assert!(!p.finished);
+        // 24 steps in all at 225 s each.
+        assert!((p.projected_hours().unwrap() - 1.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_run_in_its_first_epoch_has_no_projection_and_a_missing_one_no_progress() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        assert!(RunProgress::read(dir, 3).is_none());
+        std::fs::write(
+            dir.join("steps.csv"),
+            format!("{HEADER}\n0,1,1,10.5,{}\n", terms(4.0)),
+        )
+        .unwrap();
+        let p = RunProgress::read(dir, 3).unwrap();
+        assert_eq!((p.steps, p.steps_per_epoch, p.epochs_done), (1, None, 0));
+        assert_eq!(p.projected_hours(), None);
+        assert_eq!(p.last_val_cm, None);
+    }
+}
