@@ -23,7 +23,7 @@ pub struct RunProgress {
     pub steps_per_epoch: Option<u64>,
     /// Training hours so far (all sessions).
     pub hours: f64,
-    /// Validation Edist (cm) of the last finished epoch, and the lowest.
+    /// Validation Edist (cm) of the last finished epoch.
     pub last_val_cm: Option<f64>,
     /// The lowest validation Edist (cm) so far.
     pub best_val_cm: Option<f64>,
