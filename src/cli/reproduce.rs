@@ -121,11 +121,21 @@ impl Drop for SetOnDrop<'_> {
 
 /// Training children; any still running when this is dropped (an error in this process)
 /// are killed, so none trains on unsupervised.
-struct Children<'p>(Vec<(&'p PlanRun, Child)>);
+struct Children<'p>(Vec<(&'p PlanRun, Job, Child)>);
+
+/// What a child of the training stages does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Job {
+    /// `drape train`.
+    Train,
+    /// `drape eval` of a run that has just finished, so that its figures reach the record
+    /// in the session that trained it.
+    Eval,
+}
 
 impl Drop for Children<'_> {
     fn drop(&mut self) {
-        for (_, c) in &mut self.0 {
+        for (_, _, c) in &mut self.0 {
             let _ = c.kill();
             let _ = c.wait();
         }
@@ -148,7 +158,20 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         if !out.is_dir() {
             println!("nothing has run yet: no working folder {}", out.display());
         }
-        let ledger = Ledger::load(&ledger_path)?;
+        // A fresh machine: what the record holds (`drape reproduce` restores it).
+        let ledger = match &plan.record {
+            Some(r) if !ledger_path.exists() => {
+                let l = Ledger::load(&r.join("stages.json"))?;
+                if l.machine_seconds > 0.0 {
+                    println!(
+                        "the working folder has no ledger: hours and stages below are the record's ({}); the next `drape reproduce` restores its finished runs",
+                        r.display()
+                    );
+                }
+                l
+            }
+            _ => Ledger::load(&ledger_path)?,
+        };
         print!(
             "{}",
             eval::repro::status::status(&plan, &args.plan, &out, &ledger)
@@ -156,6 +179,11 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         return Ok(());
     }
     std::fs::create_dir_all(&out)?;
+    // What earlier sessions recorded in the repository (the plan's `record`) and this
+    // working folder lacks: a fresh machine resumes where they stopped.
+    for what in eval::repro::record::restore(&plan, &out)? {
+        println!("restored from the record: {what}");
+    }
     let mut ledger = Ledger::load(&ledger_path)?;
     // An earlier version kept running stages' time in a heartbeat file: fold it in once.
     let running_path = out.join("stages.running.json");
@@ -196,6 +224,7 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     });
     let ledger = clock.into_inner().unwrap_or_else(|e| e.into_inner()).ledger;
     ledger.save(&ledger_path)?;
+    save_record(&plan, &out, &ledger);
     r?;
     let docs = args
         .docs
@@ -209,8 +238,9 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Runs the plan's unfinished stages: generation, training (`parallel_runs` at once),
-/// evaluation.
+/// Runs the plan's unfinished stages: for each dataset in turn its generation and the
+/// training of its runs (`parallel_runs` at once, each evaluated as it finishes); then the
+/// evaluations left and the speed-ups.
 fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
@@ -268,7 +298,12 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
                 );
             }
         }
-        let passed = || lock(clock).ledger.done.get(&name) == Some(&true);
+        // Skipped when generated here already, or when no stage still to run needs it
+        // (its runs are recorded: a fresh machine does not make it again for nothing).
+        let passed = || {
+            (lock(clock).ledger.done.get(&name) == Some(&true) && manifest())
+                || !eval::repro::record::data_needed(plan, out, &d.key)
+        };
         stage(&name, &passed, &manifest, &mut || {
             let mut a: Vec<&std::ffi::OsStr> = vec![
                 "gen".as_ref(),
@@ -282,9 +317,12 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
             }
             child(ctx, &name, &a)
         })?;
+        save_record(plan, out, &lock(clock).ledger);
+        // Its runs train before the next dataset is made, so that a session spends its
+        // hours on finished runs rather than on data that later sessions would need.
+        let runs: Vec<&PlanRun> = plan.runs.iter().filter(|r| r.data == d.key).collect();
+        train_runs(ctx, plan, &runs, out, clock)?;
     }
-
-    train_runs(ctx, plan, out, clock)?;
 
     let evaluated = || {
         plan.runs
@@ -344,6 +382,24 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
     Ok(())
 }
 
+/// Brings the plan's record up to date (a warning if it cannot: the working folder still
+/// holds everything).
+fn save_record(plan: &Plan, out: &Path, ledger: &Ledger) {
+    match eval::repro::record::save(plan, out, ledger) {
+        Ok(changed) if !changed.is_empty() => {
+            if let Some(r) = &plan.record {
+                println!(
+                    "   record {}: {} file(s) updated; commit it to keep them",
+                    r.display(),
+                    changed.len()
+                );
+            }
+        }
+        Ok(_) => {}
+        Err(e) => eprintln!("warning: cannot update the plan's record: {e}"),
+    }
+}
+
 /// The folder of dataset `key` in the working folder `out`.
 fn data_dir(out: &Path, key: &str) -> PathBuf {
     out.join("data").join(key)
@@ -366,23 +422,36 @@ fn over_budget(plan: &Plan, clock: &Mutex<Clock>, name: &str) -> anyhow::Result<
     Ok(())
 }
 
-/// The training stages: up to `parallel_runs` children at once, a fine-tune once the run
-/// it starts from has finished. With more than one at once, each child's output goes to
-/// OUT/logs/. Returns once every run has finished, or fails naming the runs that did not
+/// The training stages of `runs`: up to `parallel_runs` children at once, a fine-tune
+/// once the run it starts from has finished, and each finished run's evaluation before any
+/// new training (then the record is brought up to date). With more than one at once, each
+/// child's output goes to OUT/logs/. Returns once every run has finished, or fails naming the runs that did not
 /// (the others are left to finish first).
-fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
+fn train_runs(
+    ctx: &Context,
+    plan: &Plan,
+    runs: &[&PlanRun],
+    out: &Path,
+    clock: &Mutex<Clock>,
+) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
     let parallel = plan.parallel_runs;
     let threads = plan.run_threads();
     let log_of = |key: &str| out.join("logs").join(format!("train-{key}.log"));
+    let evaluated = |key: &str| out.join("eval").join(key).join("metrics.json").exists();
     let mut pending: Vec<&PlanRun> = Vec::new();
-    for r in &plan.runs {
+    // Finished runs not yet evaluated, evaluated before any new training starts.
+    let mut to_eval: Vec<&PlanRun> = Vec::new();
+    for &r in runs {
         if finished_run(&run_dir(&r.key)) {
             lock(clock)
                 .ledger
                 .done
                 .insert(format!("train {}", r.key), true);
+            if !evaluated(&r.key) {
+                to_eval.push(r);
+            }
         } else {
             pending.push(r);
         }
@@ -394,12 +463,40 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
     let mut failures: Vec<String> = Vec::new();
     let mut status_at = Instant::now();
     loop {
+        while failures.is_empty() && running.0.len() < parallel && !to_eval.is_empty() {
+            let r = to_eval.remove(0);
+            let name = format!("eval {}", r.key);
+            let (data, dir, e) = (
+                data_dir(&r.data),
+                run_dir(&r.key),
+                out.join("eval").join(&r.key),
+            );
+            let a: Vec<&std::ffi::OsStr> = vec![
+                "eval".as_ref(),
+                "--model".as_ref(),
+                dir.as_os_str(),
+                "--data".as_ref(),
+                data.as_os_str(),
+                "-o".as_ref(),
+                e.as_os_str(),
+            ];
+            let log = out.join("logs").join(format!("eval-{}.log", r.key));
+            println!("== {name}, log {}", log.display());
+            std::fs::create_dir_all(out.join("logs"))?;
+            match spawn(ctx, &a, threads, Some(&log)) {
+                Ok(c) => {
+                    running.0.push((r, Job::Eval, c));
+                    lock(clock).start(&name)?;
+                }
+                Err(e) => failures.push(format!("{name} did not start: {e}")),
+            }
+        }
         while failures.is_empty() && running.0.len() < parallel {
             // A fine-tune waits until the run it starts from is finished on disk and its
             // process has been reaped (its last files may be written just before it exits).
             let ready = pending.iter().position(|r| {
                 r.init.as_ref().is_none_or(|i| {
-                    finished_run(&run_dir(i)) && !running.0.iter().any(|(x, _)| &x.key == i)
+                    finished_run(&run_dir(i)) && !running.0.iter().any(|(x, _, _)| &x.key == i)
                 })
             });
             let Some(k) = ready else { break };
@@ -448,7 +545,7 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
             }
             match spawn(ctx, &a, threads, threads.map(|_| log.as_path())) {
                 Ok(c) => {
-                    running.0.push((r, c));
+                    running.0.push((r, Job::Train, c));
                     lock(clock).start(&name)?;
                 }
                 Err(e) => failures.push(format!("{name} did not start: {e}")),
@@ -460,7 +557,7 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
         std::thread::sleep(std::time::Duration::from_secs(1));
         let mut k = 0;
         while k < running.0.len() {
-            let status = match running.0[k].1.try_wait() {
+            let status = match running.0[k].2.try_wait() {
                 Ok(None) => {
                     k += 1;
                     continue;
@@ -468,7 +565,29 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
                 Ok(Some(status)) => Ok(status),
                 Err(e) => Err(e),
             };
-            let (r, _) = running.0.remove(k);
+            let (r, job, _) = running.0.remove(k);
+            if job == Job::Eval {
+                let name = format!("eval {}", r.key);
+                let done = evaluated(&r.key);
+                lock(clock).end(&name, done)?;
+                match status {
+                    Ok(s) if s.success() && done => {
+                        println!("== {name}: done");
+                        let ledger = lock(clock).ledger.clone();
+                        save_record(plan, out, &ledger);
+                    }
+                    Ok(s) => {
+                        let log = out.join("logs").join(format!("eval-{}.log", r.key));
+                        failures.push(format!(
+                            "{name} failed ({s}); end of {}:\n{}",
+                            log.display(),
+                            tail(&log, 10)
+                        ));
+                    }
+                    Err(e) => failures.push(format!("{name}: cannot wait for its process: {e}")),
+                }
+                continue;
+            }
             let name = format!("train {}", r.key);
             let done = finished_run(&run_dir(&r.key));
             lock(clock).end(&name, done)?;
@@ -484,7 +603,12 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
                 Err(e) => Some(format!("{name}: cannot wait for its process: {e}")),
             };
             match failure {
-                None => println!("== {name}: finished ({hours:.2} h in all)"),
+                None => {
+                    println!("== {name}: finished ({hours:.2} h in all)");
+                    to_eval.push(r);
+                    let ledger = lock(clock).ledger.clone();
+                    save_record(plan, out, &ledger);
+                }
                 Some(f) => {
                     println!("== {f}");
                     if threads.is_some() {
@@ -503,7 +627,7 @@ fn train_runs(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> a
         }
         if threads.is_some() && status_at.elapsed().as_secs() >= 600 {
             status_at = Instant::now();
-            for (r, _) in &running.0 {
+            for (r, _, _) in running.0.iter().filter(|(_, j, _)| *j == Job::Train) {
                 println!(
                     "   train {}: {:.2} h, {}",
                     r.key,

@@ -114,7 +114,15 @@ fn run_epochs(plan_epochs: Option<usize>, dir: &Path, config: &Path) -> Option<u
 pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> String {
     let mut w = String::new();
     let done = |name: &str| ledger.done.get(name).copied().unwrap_or(false);
-    let measured = |name: &str| ledger.seconds.get(name).map(|s| s / 3600.0);
+    // The evaluations made as runs finish ("eval KEY") count in the eval stage.
+    let measured = |name: &str| {
+        ledger
+            .seconds
+            .iter()
+            .filter(|(k, _)| *k == name || (name == "eval" && k.starts_with("eval ")))
+            .map(|(_, s)| s / 3600.0)
+            .reduce(|a, b| a + b)
+    };
     writeln!(
         w,
         "plan {} ({}), working folder {}\nmachine hours measured: {:.2} of a budget of {} (planned in all: {:.2})\n",
