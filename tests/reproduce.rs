@@ -1,9 +1,12 @@
 //! `drape reproduce` end to end on a tiny plan: it generates, trains a network and a
 //! fine-tune from it, evaluates both, times the speed-up and writes the report with our
-//! numbers beside the paper's; a second run resumes without redoing anything; a spent
-//! budget stops it with a clear message.
+//! numbers beside the paper's; a second run resumes without redoing anything; a plan's
+//! record lets a fresh working folder resume without the data; a spent budget stops it
+//! with a clear message.
 
 mod common;
+
+use std::path::Path;
 
 use common::{drape, run};
 
@@ -219,6 +222,65 @@ samples = 1
         serde_json::from_slice(&std::fs::read(out.join("stages.json")).unwrap()).unwrap();
     assert_eq!(again["seconds"], ledger["seconds"]);
     assert_eq!(again["machine_seconds"], ledger["machine_seconds"]);
+
+    // With a record, the finished stages go to it; a fresh working folder (a fresh machine)
+    // restores them and runs nothing, not even the dataset, and reports the same numbers.
+    let record = dir.join("record");
+    std::fs::write(
+        dir.join("recorded.toml"),
+        plan(1.0).replace(
+            "parallel_runs = 2",
+            &format!("parallel_runs = 2\nrecord = \"{}\"", record.display()),
+        ),
+    )
+    .unwrap();
+    let reproduce_in = |plan: &str, out: &Path, docs: &Path| {
+        run(drape()
+            .arg("reproduce")
+            .arg(dir.join(plan))
+            .arg("-o")
+            .arg(out)
+            .arg("--docs")
+            .arg(docs))
+    };
+    let (ok, text) = reproduce_in("recorded.toml", &out, &dir.join("docs-recorded"));
+    assert!(ok && text.contains("file(s) updated"), "{text}");
+    for f in [
+        "stages.json",
+        "data/tshirt.json",
+        "runs/tshirt-local/state.json",
+        "runs/tshirt-local-rq/log.csv",
+        "eval/tshirt-naive/metrics.json",
+        "speedup/tshirt-local.json",
+    ] {
+        assert!(record.join(f).exists(), "{f} not recorded: {text}");
+    }
+    // No stage needs weights any more, and checkpoints are never recorded.
+    for r in ["tshirt-local", "tshirt-naive", "tshirt-local-rq"] {
+        for f in ["best.bpk", "last.bpk", "last-optim.bpk"] {
+            assert!(!record.join("runs").join(r).join(f).exists(), "{r}/{f}");
+        }
+    }
+    let fresh = dir.join("fresh");
+    let (ok, text) = reproduce_in("recorded.toml", &fresh, &dir.join("docs-fresh"));
+    assert!(ok && !text.contains("== "), "{text}");
+    assert!(text.contains("restored from the record: run tshirt-local-rq (finished)"));
+    assert!(!fresh.join("data").exists(), "{text}");
+    let numbers = |docs: &str| {
+        let j: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(dir.join(docs).join("reproduction.json")).unwrap(),
+        )
+        .unwrap();
+        j["numbers"].clone()
+    };
+    assert_eq!(numbers("docs-fresh"), numbers("docs-recorded"));
+    assert!(
+        numbers("docs-fresh")
+            .as_array()
+            .is_some_and(|n| !n.is_empty())
+    );
+    let md = std::fs::read_to_string(dir.join("docs-fresh/reproduction.md")).unwrap();
+    assert!(!md.contains("| tshirt | `tiny` | – |"), "{md}");
 
     // --status reads the folder and writes nothing: every stage done, the runs' epochs
     // and validation Edist, no hours left.
