@@ -92,15 +92,23 @@ fn finished_run(run: &Path) -> bool {
     learn::train::State::load(run).is_ok_and(|s| s.is_some_and(|s| s.finished))
 }
 
-/// The last line of a run's `steps.csv` as "epoch E, step S" (for the status lines).
+/// Where a run under way stands, for the status lines: "epoch E of N, step S" and the
+/// last validation Edist (read as `--status` reads it).
 fn last_step(run: &Path) -> String {
-    std::fs::read_to_string(run.join("steps.csv"))
-        .ok()
-        .and_then(|t| {
-            let f: Vec<String> = t.lines().last()?.split(',').map(String::from).collect();
-            (f.len() > 2 && f[0] != "epoch").then(|| format!("epoch {}, step {}", f[0], f[2]))
-        })
-        .unwrap_or_else(|| "starting".into())
+    let epochs = learn::config::TrainConfig::load(&run.join("config.toml")).map_or(0, |c| c.epochs);
+    eval::repro::status::RunProgress::read(run, epochs).map_or_else(
+        || "starting".into(),
+        |p| {
+            format!(
+                "epoch {} of {}, step {}{}",
+                (p.epochs_done + 1).min(p.epochs.max(1)),
+                p.epochs,
+                p.steps,
+                p.last_val_cm
+                    .map_or(String::new(), |v| format!(", validation Edist {v:.2} cm"))
+            )
+        },
+    )
 }
 
 /// The last `n` lines of a file (for a failed child's log).
