@@ -281,6 +281,23 @@ samples = 1
     );
     let md = std::fs::read_to_string(dir.join("docs-fresh/reproduction.md")).unwrap();
     assert!(!md.contains("| tshirt | `tiny` | – |"), "{md}");
+    // --status on a machine without the working folder reads the record.
+    let (ok, status) = run(drape()
+        .arg("reproduce")
+        .arg(dir.join("recorded.toml"))
+        .arg("-o")
+        .arg(dir.join("lost"))
+        .arg("--status"));
+    assert!(
+        ok && status.contains("this is the plan's record"),
+        "{status}"
+    );
+    assert!(
+        row_in(&status, "train tshirt-local").contains("| done: 3 epochs, ")
+            && row_in(&status, "train tshirt-local-rq").ends_with("; evaluated |"),
+        "{status}"
+    );
+    assert!(!dir.join("lost").exists());
 
     // --status reads the folder and writes nothing: every stage done, the runs' epochs
     // and validation Edist, no hours left.

@@ -74,9 +74,11 @@ pub struct Plan {
     pub budget_hours: f64,
     /// Planned machine hours of all evaluations together.
     pub eval_planned_hours: f64,
-    /// Datasets, generated first.
+    /// Datasets, generated in order; after each, the runs on the datasets made so far
+    /// train once there are at least `parallel_runs` of them to train (or it is the last).
     pub datasets: Vec<PlanDataset>,
-    /// Runs, started in order (a fine-tune once the run it starts from has finished).
+    /// Runs, started in order within those groups (a fine-tune once the run it starts
+    /// from has finished).
     pub runs: Vec<PlanRun>,
     /// Training runs at once (default 1). Each gets `cores / parallel_runs` threads: on the
     /// 2-core reference machine one training process on one thread is about as fast as on
@@ -150,6 +152,19 @@ impl Plan {
                     return Err(format!(
                         "run {}: init {:?} is not a run listed before it",
                         r.key, i
+                    ));
+                }
+                // Its base trains with its dataset's group: no later than this run's.
+                let at = |key: &str| self.datasets.iter().position(|d| d.key == key);
+                let base = self
+                    .runs
+                    .iter()
+                    .find(|x| &x.key == i)
+                    .expect("listed before");
+                if at(&base.data) > at(&r.data) {
+                    return Err(format!(
+                        "run {}: init {:?} trains on dataset {:?}, which the plan makes after {:?}",
+                        r.key, i, base.data, r.data
                     ));
                 }
             }
@@ -1236,6 +1251,46 @@ mod tests {
         c.credit().unwrap();
         assert_eq!(Ledger::load(&path).unwrap(), l);
         assert!((c.hours() - l.hours()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_fine_tune_cannot_start_from_a_run_on_a_dataset_made_after_its_own() {
+        let plan = |first: &str, second: &str| {
+            format!(
+                r#"
+name = "t"
+budget_hours = 1.0
+eval_planned_hours = 0.1
+[[datasets]]
+key = "{first}"
+config = "tiny"
+planned_hours = 0.1
+[[datasets]]
+key = "{second}"
+config = "tiny"
+planned_hours = 0.1
+[[runs]]
+key = "base"
+config = "configs/train/tiny.toml"
+data = "b"
+planned_hours = 0.1
+[[runs]]
+key = "tune"
+config = "configs/train/tiny.toml"
+data = "a"
+init = "base"
+planned_hours = 0.1
+[speedup]
+runs = ["base"]
+samples = 1
+"#
+            )
+        };
+        let check = |t: String| toml::from_str::<Plan>(&t).unwrap().validate();
+        // The base's dataset "b" is made first: fine.
+        assert_eq!(check(plan("b", "a")), Ok(()));
+        let e = check(plan("a", "b")).unwrap_err();
+        assert!(e.contains("which the plan makes after"), "{e}");
     }
 
     #[test]

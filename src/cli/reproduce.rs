@@ -163,26 +163,30 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         .unwrap_or_else(|| PathBuf::from("runs").join(format!("repro-{}", plan.name)));
     let ledger_path = out.join("stages.json");
     if args.status {
-        if !out.is_dir() {
-            println!("nothing has run yet: no working folder {}", out.display());
-        }
-        // A fresh machine: what the record holds (`drape reproduce` restores it).
-        let ledger = match &plan.record {
-            Some(r) if !ledger_path.exists() => {
-                let l = Ledger::load(&r.join("stages.json"))?;
-                if l.machine_seconds > 0.0 {
-                    println!(
-                        "the working folder has no ledger: hours and stages below are the record's ({}); the next `drape reproduce` restores its finished runs",
-                        r.display()
-                    );
-                }
-                l
+        // A fresh machine: what the plan's record holds (`drape reproduce` restores it).
+        let recorded = plan
+            .record
+            .as_ref()
+            .filter(|r| !ledger_path.exists() && r.join("stages.json").exists());
+        let (folder, ledger) = match recorded {
+            Some(r) => {
+                println!(
+                    "no working folder {} here: this is the plan's record {} (the next `drape reproduce` restores it)",
+                    out.display(),
+                    r.display()
+                );
+                (r.clone(), Ledger::load(&r.join("stages.json"))?)
             }
-            _ => Ledger::load(&ledger_path)?,
+            None => {
+                if !out.is_dir() {
+                    println!("nothing has run yet: no working folder {}", out.display());
+                }
+                (out.clone(), Ledger::load(&ledger_path)?)
+            }
         };
         print!(
             "{}",
-            eval::repro::status::status(&plan, &args.plan, &out, &ledger)
+            eval::repro::status::status(&plan, &args.plan, &folder, &ledger)
         );
         return Ok(());
     }
@@ -215,7 +219,17 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
                     }
                     std::thread::sleep(std::time::Duration::from_secs(1));
                 }
-                if let Err(e) = lock(&clock).credit() {
+                let mut c = lock(&clock);
+                // The record's ledger too: hours of runs still training count even if this
+                // machine is lost before they finish.
+                let mut r = c.credit();
+                if let (Ok(()), Some(rec)) = (&r, &plan.record) {
+                    if rec.is_dir() {
+                        r = c.ledger.save(&rec.join("stages.json"));
+                    }
+                }
+                drop(c);
+                if let Err(e) = r {
                     if !warned {
                         eprintln!("warning: cannot save the ledger: {e}");
                         warned = true;
@@ -246,9 +260,10 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Runs the plan's unfinished stages: for each dataset in turn its generation and the
-/// training of its runs (`parallel_runs` at once, each evaluated as it finishes); then the
-/// evaluations left and the speed-ups.
+/// Runs the plan's unfinished stages: the datasets in turn, each followed by the training
+/// of the runs on the datasets made so far once there are `parallel_runs` of them to train
+/// (`parallel_runs` at once, each evaluated as it finishes); then the evaluations left and
+/// the speed-ups.
 fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
@@ -278,7 +293,8 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         r
     };
 
-    for d in &plan.datasets {
+    let mut group: Vec<&PlanRun> = Vec::new();
+    for (k, d) in plan.datasets.iter().enumerate() {
         let dir = data_dir(&d.key);
         let gate = d.max_failure_rate.map(|r| r.to_string());
         // Done once `drape gen` has exited successfully (recorded in the ledger): a
@@ -325,11 +341,21 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
             }
             child(ctx, &name, &a)
         })?;
-        save_record(plan, out, &lock(clock).ledger);
-        // Its runs train before the next dataset is made, so that a session spends its
-        // hours on finished runs rather than on data that later sessions would need.
-        let runs: Vec<&PlanRun> = plan.runs.iter().filter(|r| r.data == d.key).collect();
-        train_runs(ctx, plan, &runs, out, clock)?;
+        let ledger = lock(clock).ledger.clone();
+        save_record(plan, out, &ledger);
+        // The runs on the datasets made so far train before the next dataset is made, so
+        // that a session spends its hours on finished runs rather than on data a later
+        // session may have to make again; but only once there are enough of them to keep
+        // `parallel_runs` slots busy (or this is the last dataset).
+        group.extend(plan.runs.iter().filter(|r| r.data == d.key));
+        let to_train = group
+            .iter()
+            .filter(|r| !finished_run(&run_dir(&r.key)))
+            .count();
+        if to_train >= plan.parallel_runs || to_train == 0 || k + 1 == plan.datasets.len() {
+            train_runs(ctx, plan, &group, out, clock)?;
+            group.clear();
+        }
     }
 
     let evaluated = || {
@@ -393,18 +419,16 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
 /// Brings the plan's record up to date (a warning if it cannot: the working folder still
 /// holds everything).
 fn save_record(plan: &Plan, out: &Path, ledger: &Ledger) {
-    match eval::repro::record::save(plan, out, ledger) {
-        Ok(changed) if !changed.is_empty() => {
-            if let Some(r) = &plan.record {
-                println!(
-                    "   record {}: {} file(s) updated; commit it to keep them",
-                    r.display(),
-                    changed.len()
-                );
-            }
-        }
-        Ok(_) => {}
-        Err(e) => eprintln!("warning: cannot update the plan's record: {e}"),
+    let saved = eval::repro::record::save(plan, out, ledger);
+    if let (Some(r), false) = (&plan.record, saved.changed.is_empty()) {
+        println!(
+            "   record {}: {} file(s) updated; commit it to keep them",
+            r.display(),
+            saved.changed.len()
+        );
+    }
+    for w in &saved.warnings {
+        eprintln!("warning: the plan's record: {w}");
     }
 }
 
@@ -431,10 +455,11 @@ fn over_budget(plan: &Plan, clock: &Mutex<Clock>, name: &str) -> anyhow::Result<
 }
 
 /// The training stages of `runs`: up to `parallel_runs` children at once, a fine-tune
-/// once the run it starts from has finished, and each finished run's evaluation before any
-/// new training (then the record is brought up to date). With more than one at once, each
-/// child's output goes to OUT/logs/. Returns once every run has finished, or fails naming the runs that did not
-/// (the others are left to finish first).
+/// once the run it starts from has finished, and each finished run's evaluation (started
+/// before any training waiting for a slot; then the record is brought up to date). With
+/// more than one at once, each child's output goes to OUT/logs/. Returns once every run has
+/// finished and its evaluation ended (a failed evaluation is left to the eval stage), or
+/// fails naming the runs that did not finish (the others are left to finish first).
 fn train_runs(
     ctx: &Context,
     plan: &Plan,
@@ -471,7 +496,9 @@ fn train_runs(
     let mut failures: Vec<String> = Vec::new();
     let mut status_at = Instant::now();
     loop {
-        while failures.is_empty() && running.0.len() < parallel && !to_eval.is_empty() {
+        // Evaluations go first and also after a failure: a run that trained is evaluated
+        // in the session that trained it.
+        while running.0.len() < parallel && !to_eval.is_empty() {
             let r = to_eval.remove(0);
             let name = format!("eval {}", r.key);
             let (data, dir, e) = (
@@ -584,15 +611,17 @@ fn train_runs(
                         let ledger = lock(clock).ledger.clone();
                         save_record(plan, out, &ledger);
                     }
+                    // Not a reason to stop training: the eval stage tries it again and
+                    // fails there if it fails again.
                     Ok(s) => {
                         let log = out.join("logs").join(format!("eval-{}.log", r.key));
-                        failures.push(format!(
-                            "{name} failed ({s}); end of {}:\n{}",
+                        println!(
+                            "== {name} failed ({s}); the eval stage tries it again; end of {}:\n{}",
                             log.display(),
                             tail(&log, 10)
-                        ));
+                        );
                     }
-                    Err(e) => failures.push(format!("{name}: cannot wait for its process: {e}")),
+                    Err(e) => println!("== {name}: cannot wait for its process: {e}"),
                 }
                 continue;
             }

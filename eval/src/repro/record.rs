@@ -8,8 +8,8 @@
 //! - `data/KEY.json`: a dataset's summary ([`DataSummary`]: sample counts, build, the
 //!   manifest's sha256), never its shards;
 //! - `runs/KEY/`: a finished run's `config.toml`, `run.json`, `state.json`, `log.csv`, and
-//!   its `best.bpk` only while a stage not yet recorded still needs it (a fine-tune starts
-//!   from it, or the speed-up times it);
+//!   its `best.bpk` only while a stage not yet recorded still needs it (its evaluation, a
+//!   fine-tune that starts from it, or the speed-up that times it);
 //! - `eval/KEY/metrics.json` and `speedup/KEY.json`.
 //!
 //! [`restore`] copies what the working folder lacks back into it, so the stages skip
@@ -22,8 +22,9 @@ use serde::{Deserialize, Serialize};
 use super::{Ledger, Plan};
 use crate::evaluate::EvalError;
 
-/// Files of a finished run kept in the record (besides `best.bpk`).
-const RUN_FILES: [&str; 4] = ["config.toml", "run.json", "state.json", "log.csv"];
+/// Files of a finished run kept in the record (besides `best.bpk`); the state, which
+/// says it is finished, is written last.
+const RUN_FILES: [&str; 4] = ["config.toml", "run.json", "log.csv", "state.json"];
 
 /// What the report says about a dataset, kept when its shards are not.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -136,88 +137,150 @@ fn weights_needed(plan: &Plan, out: &Path, key: &str) -> bool {
             && !out.join("speedup").join(format!("{key}.json")).exists())
 }
 
-/// Brings the record up to date with the working folder `out`. Returns the files written
-/// or removed.
-pub fn save(plan: &Plan, out: &Path, ledger: &Ledger) -> Result<Vec<PathBuf>, EvalError> {
+/// What [`save`] did.
+#[derive(Debug, Default)]
+pub struct Saved {
+    /// Files written or removed.
+    pub changed: Vec<PathBuf>,
+    /// What it could not record (each item is tried on its own).
+    pub warnings: Vec<String>,
+}
+
+/// Brings the record up to date with the working folder `out`: everything is copied
+/// first, and only then are weights no stage needs any more removed, so an interrupted
+/// save never leaves a run without the weights a stage not yet recorded needs.
+pub fn save(plan: &Plan, out: &Path, ledger: &Ledger) -> Saved {
+    let mut saved = Saved::default();
     let Some(rec) = &plan.record else {
-        return Ok(Vec::new());
+        return saved;
     };
-    let mut changed = Vec::new();
-    std::fs::create_dir_all(rec).map_err(io(rec))?;
-    let lp = rec.join("stages.json");
-    let before = std::fs::read(&lp).ok();
-    ledger.save(&lp)?;
-    if std::fs::read(&lp).ok() != before {
-        changed.push(lp);
-    }
+    let ledger_bytes = serde_json::to_vec_pretty(ledger).expect("ledger serialises");
+    saved.note(put_bytes(&ledger_bytes, rec.join("stages.json")));
     for d in &plan.datasets {
         let mp = out.join("data").join(&d.key).join("manifest.json");
-        if let Some(s) = DataSummary::read(&d.config, &mp)? {
-            let p = rec.join("data").join(format!("{}.json", d.key));
-            let bytes = serde_json::to_vec_pretty(&s).expect("summary serialises");
-            if std::fs::read(&p).ok().as_deref() != Some(&bytes[..]) {
-                std::fs::create_dir_all(rec.join("data")).map_err(io(rec))?;
-                dataset::generate::write_atomic(&p, &bytes)?;
-                changed.push(p);
+        match DataSummary::read(&d.config, &mp) {
+            Ok(Some(s)) => {
+                let bytes = serde_json::to_vec_pretty(&s).expect("summary serialises");
+                saved.note(put_bytes(
+                    &bytes,
+                    rec.join("data").join(format!("{}.json", d.key)),
+                ));
             }
+            Ok(None) => {}
+            Err(e) => saved.warnings.push(format!("dataset {}: {e}", d.key)),
         }
     }
+    let mut drop = Vec::new();
     for r in &plan.runs {
         let run = out.join("runs").join(&r.key);
         let to = rec.join("runs").join(&r.key);
         if finished(&run) {
-            for f in RUN_FILES {
-                if copy(&run.join(f), &to.join(f))? {
-                    changed.push(to.join(f));
-                }
-            }
             let best = to.join("best.bpk");
             if weights_needed(plan, out, &r.key) {
-                if copy(&run.join("best.bpk"), &best)? {
-                    changed.push(best);
+                if run.join("best.bpk").exists() {
+                    saved.put(&run.join("best.bpk"), best);
+                } else if !best.exists() {
+                    saved.warnings.push(format!(
+                        "run {} is finished but has no best.bpk, which a stage still to run needs",
+                        r.key
+                    ));
                 }
-            } else if best.exists() {
-                std::fs::remove_file(&best).map_err(io(&best))?;
-                changed.push(best);
+            } else {
+                drop.push(best);
+            }
+            // In RUN_FILES' order: the state last, so a recorded finished state always has
+            // its files beside it.
+            for f in RUN_FILES {
+                saved.put(&run.join(f), to.join(f));
             }
         }
         let m = out.join("eval").join(&r.key).join("metrics.json");
-        if m.exists() && copy(&m, &rec.join("eval").join(&r.key).join("metrics.json"))? {
-            changed.push(rec.join("eval").join(&r.key).join("metrics.json"));
+        if m.exists() {
+            saved.put(&m, rec.join("eval").join(&r.key).join("metrics.json"));
         }
         let s = out.join("speedup").join(format!("{}.json", r.key));
-        let st = rec.join("speedup").join(format!("{}.json", r.key));
-        if s.exists() && copy(&s, &st)? {
-            changed.push(st);
+        if s.exists() {
+            saved.put(&s, rec.join("speedup").join(format!("{}.json", r.key)));
         }
     }
-    Ok(changed)
+    if saved.warnings.is_empty() {
+        for best in drop.into_iter().filter(|b| b.exists()) {
+            match std::fs::remove_file(&best) {
+                Ok(()) => saved.changed.push(best),
+                Err(e) => saved.warnings.push(format!("{}: {e}", best.display())),
+            }
+        }
+    }
+    saved
+}
+
+impl Saved {
+    /// Notes one item's outcome.
+    fn note(&mut self, r: Result<Option<PathBuf>, EvalError>) {
+        match r {
+            Ok(Some(p)) => self.changed.push(p),
+            Ok(None) => {}
+            Err(e) => self.warnings.push(e.to_string()),
+        }
+    }
+
+    /// Copies `from` to `to` and notes it.
+    fn put(&mut self, from: &Path, to: PathBuf) {
+        let r = copy(from, &to).map(|w| w.then_some(to));
+        self.note(r);
+    }
+}
+
+/// Writes `bytes` to `to` (creating its folder) unless it holds them already; returns
+/// `to` if it wrote.
+fn put_bytes(bytes: &[u8], to: PathBuf) -> Result<Option<PathBuf>, EvalError> {
+    if std::fs::read(&to).is_ok_and(|b| b == bytes) {
+        return Ok(None);
+    }
+    if let Some(p) = to.parent() {
+        std::fs::create_dir_all(p).map_err(io(p))?;
+    }
+    dataset::generate::write_atomic(&to, bytes)?;
+    Ok(Some(to))
 }
 
 /// Copies into the working folder `out` what the record holds and `out` lacks: finished
-/// runs, evaluations, speed-ups, and the ledger if `out` has none. Returns what it
-/// restored, one line each.
+/// runs, evaluations, speed-ups, and the ledger if `out` has none or one with fewer
+/// machine hours (another machine went on from the record). Returns what it restored,
+/// one line each.
 pub fn restore(plan: &Plan, out: &Path) -> Result<Vec<String>, EvalError> {
     let Some(rec) = &plan.record else {
         return Ok(Vec::new());
     };
     let mut done = Vec::new();
-    let lp = out.join("stages.json");
-    if !lp.exists() && rec.join("stages.json").exists() {
-        copy(&rec.join("stages.json"), &lp)?;
-        done.push("the ledger of measured hours".to_string());
+    let (lp, rl) = (out.join("stages.json"), rec.join("stages.json"));
+    if rl.exists() {
+        let ahead =
+            !lp.exists() || Ledger::load(&rl)?.machine_seconds > Ledger::load(&lp)?.machine_seconds;
+        if ahead {
+            copy(&rl, &lp)?;
+            done.push("the ledger of measured hours".to_string());
+        }
     }
     for r in &plan.runs {
         let from = rec.join("runs").join(&r.key);
         let run = out.join("runs").join(&r.key);
         if finished(&from) && !finished(&run) {
-            // A half-trained run of this folder is replaced by the recorded finished one.
-            for f in RUN_FILES {
-                copy(&from.join(f), &run.join(f))?;
+            // A half-trained run of this folder is replaced by the recorded finished one:
+            // its checkpoint and steps go; the weights come first, the state last, so an
+            // interrupted restore never leaves a finished state without them.
+            for f in ["last.bpk", "last-optim.bpk", "steps.csv", "best.bpk"] {
+                if run.join(f).exists() {
+                    std::fs::remove_file(run.join(f)).map_err(io(&run))?;
+                }
             }
             if from.join("best.bpk").exists() {
                 copy(&from.join("best.bpk"), &run.join("best.bpk"))?;
             }
+            for f in RUN_FILES.iter().filter(|f| **f != "state.json") {
+                copy(&from.join(f), &run.join(f))?;
+            }
+            copy(&from.join("state.json"), &run.join("state.json"))?;
             done.push(format!("run {} (finished)", r.key));
         }
         let m = rec.join("eval").join(&r.key).join("metrics.json");
@@ -237,7 +300,7 @@ pub fn restore(plan: &Plan, out: &Path) -> Result<Vec<String>, EvalError> {
 }
 
 /// Whether a stage still to run needs dataset `key` on disk: a run on it not finished or
-/// not evaluated, or a speed-up on it not made.
+/// not evaluated, or a speed-up on it not made. (A dataset no run uses is never needed.)
 pub fn data_needed(plan: &Plan, out: &Path, key: &str) -> bool {
     plan.runs.iter().filter(|r| r.data == key).any(|r| {
         !finished(&out.join("runs").join(&r.key))
@@ -320,7 +383,7 @@ samples = 2
 
         // Nothing finished: only the ledger is recorded; the data are needed.
         std::fs::create_dir_all(out.join("runs").join("base")).unwrap();
-        save(&p, &out, &ledger).unwrap();
+        assert!(save(&p, &out, &ledger).warnings.is_empty());
         assert!(rec.join("stages.json").exists());
         assert!(!rec.join("runs").exists());
         assert!(data_needed(&p, &out, "shirt"));
@@ -328,7 +391,7 @@ samples = 2
         // The base run finished: its small files and its weights (its evaluation, the
         // fine-tune and the speed-up need them), never its checkpoint.
         finish(&out, "base");
-        save(&p, &out, &ledger).unwrap();
+        assert!(save(&p, &out, &ledger).warnings.is_empty());
         let rb = rec.join("runs").join("base");
         for f in RUN_FILES {
             assert_eq!(
@@ -340,14 +403,23 @@ samples = 2
 
         // Evaluated: the weights stay while the fine-tune and the speed-up wait for them.
         evaluate(&out, "base");
-        save(&p, &out, &ledger).unwrap();
+        assert!(save(&p, &out, &ledger).warnings.is_empty());
         assert!(rec.join("eval/base/metrics.json").exists());
         assert!(rb.join("best.bpk").exists());
 
         // A fresh machine resumes from the record: the base run is finished there and
         // can start the fine-tune; the data are needed again (the fine-tune trains on them).
         let fresh = root.path().join("fresh");
+        // It had begun the base run before it was lost: that half-trained run is replaced.
+        let half = fresh.join("runs/base");
+        std::fs::create_dir_all(&half).unwrap();
+        for f in ["last.bpk", "last-optim.bpk", "steps.csv", "best.bpk"] {
+            std::fs::write(half.join(f), "half").unwrap();
+        }
         let restored = restore(&p, &fresh).unwrap();
+        for f in ["last.bpk", "last-optim.bpk", "steps.csv"] {
+            assert!(!half.join(f).exists(), "{f}");
+        }
         assert_eq!(restored.len(), 3, "{restored:?}");
         assert!(finished(&fresh.join("runs/base")));
         assert_eq!(
@@ -365,14 +437,16 @@ samples = 2
         evaluate(&out, "tune");
         std::fs::create_dir_all(out.join("speedup")).unwrap();
         std::fs::write(out.join("speedup/base.json"), "{}").unwrap();
-        let changed = save(&p, &out, &ledger).unwrap();
+        let saved = save(&p, &out, &ledger);
+        assert!(saved.warnings.is_empty(), "{:?}", saved.warnings);
+        let changed = saved.changed;
         assert!(changed.contains(&rb.join("best.bpk")));
         assert!(!rb.join("best.bpk").exists());
         assert!(!rec.join("runs/tune/best.bpk").exists());
         assert!(rec.join("runs/tune/state.json").exists());
         assert!(rec.join("speedup/base.json").exists());
         // Saving again writes nothing.
-        assert!(save(&p, &out, &ledger).unwrap().is_empty());
+        assert!(save(&p, &out, &ledger).changed.is_empty());
 
         // Another fresh machine has nothing left to do that needs the data.
         let last = root.path().join("last");

@@ -34,27 +34,39 @@ pub struct RunProgress {
 impl RunProgress {
     /// Reads run folder `dir` of a run of `epochs` epochs; None before its first step.
     pub fn read(dir: &Path, epochs: usize) -> Option<Self> {
-        let steps = std::fs::read_to_string(dir.join("steps.csv")).ok()?;
-        // epoch, batch, step, seconds, ...: lines redone after an interruption repeat an
-        // (epoch, batch); the last line is the latest.
-        let rows: Vec<(usize, u64, u64, f64)> = steps
-            .lines()
-            .filter_map(|l| {
-                let mut f = l.split(',');
-                Some((
-                    f.next()?.parse().ok()?,
-                    f.next()?.parse().ok()?,
-                    f.next()?.parse().ok()?,
-                    f.next()?.parse().ok()?,
-                ))
-            })
-            .collect();
-        let &(_, _, step, seconds) = rows.last()?;
-        let steps_per_epoch = rows
-            .iter()
-            .any(|r| r.0 > 0)
-            .then(|| rows.iter().filter(|r| r.0 == 0).map(|r| r.1).max())
-            .flatten();
+        let state = learn::train::State::load(dir).ok().flatten();
+        let (step, seconds, steps_per_epoch) = match std::fs::read_to_string(dir.join("steps.csv"))
+        {
+            Ok(steps) => {
+                // epoch, batch, step, seconds, ...: lines redone after an interruption
+                // repeat an (epoch, batch); the last line is the latest.
+                let rows: Vec<(usize, u64, u64, f64)> = steps
+                    .lines()
+                    .filter_map(|l| {
+                        let mut f = l.split(',');
+                        Some((
+                            f.next()?.parse().ok()?,
+                            f.next()?.parse().ok()?,
+                            f.next()?.parse().ok()?,
+                            f.next()?.parse().ok()?,
+                        ))
+                    })
+                    .collect();
+                let &(_, _, step, seconds) = rows.last()?;
+                let per_epoch = rows
+                    .iter()
+                    .any(|r| r.0 > 0)
+                    .then(|| rows.iter().filter(|r| r.0 == 0).map(|r| r.1).max())
+                    .flatten();
+                (step, seconds, per_epoch)
+            }
+            // A finished run restored from a plan's record keeps its state, not its steps.
+            Err(_) => {
+                let s = state.as_ref().filter(|s| s.finished)?;
+                let per_epoch = (epochs > 0).then(|| s.steps / epochs as u64);
+                (s.steps, s.seconds, per_epoch)
+            }
+        };
         let log = std::fs::read_to_string(dir.join("log.csv")).unwrap_or_default();
         let mut epochs_done = 0;
         let mut vals = Vec::new();
@@ -71,10 +83,7 @@ impl RunProgress {
                 }
             }
         }
-        let finished = learn::train::State::load(dir)
-            .ok()
-            .flatten()
-            .is_some_and(|s| s.finished);
+        let finished = state.is_some_and(|s| s.finished);
         Some(Self {
             epochs,
             epochs_done,
@@ -178,12 +187,14 @@ pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> Str
         let progress = epochs.and_then(|e| RunProgress::read(&dir, e));
         let state = match &progress {
             Some(p) if p.finished => {
+                let evaluated = out.join("eval").join(&r.key).join("metrics.json").exists();
                 format!(
-                    "done: {} epochs, {:.2} h of training, validation Edist {} cm (best {})",
+                    "done: {} epochs, {:.2} h of training, validation Edist {} cm (best {}){}",
                     p.epochs,
                     p.hours,
                     fmt(p.last_val_cm, 2),
-                    fmt(p.best_val_cm, 2)
+                    fmt(p.best_val_cm, 2),
+                    if evaluated { "; evaluated" } else { "" }
                 )
             }
             Some(p) => {
@@ -309,6 +320,26 @@ mod tests {
         assert!(!p.finished);
         // 24 steps in all at 225 s each.
         assert!((p.projected_hours().unwrap() - 1.5).abs() < 1e-12);
+
+        // Restored from a plan's record: no steps.csv, a finished state; the log stays.
+        std::fs::remove_file(dir.join("steps.csv")).unwrap();
+        assert!(
+            RunProgress::read(dir, 6).is_none(),
+            "an unfinished run needs its steps"
+        );
+        let state = learn::train::State {
+            epoch: 6,
+            steps: 24,
+            seconds: 5400.0,
+            finished: true,
+            ..Default::default()
+        };
+        std::fs::write(dir.join("state.json"), serde_json::to_vec(&state).unwrap()).unwrap();
+        let p = RunProgress::read(dir, 6).unwrap();
+        assert!(p.finished);
+        assert_eq!((p.steps, p.steps_per_epoch), (24, Some(4)));
+        assert_eq!(p.projected_hours(), Some(1.5));
+        assert_eq!(p.best_val_cm, Some(2.9));
     }
 
     #[test]
