@@ -10,7 +10,7 @@
 //! - `runs/KEY/`: a finished run's `config.toml`, `run.json`, `state.json`, `log.csv`, and
 //!   its `best.bpk` only while a stage not yet recorded still needs it (its evaluation, a
 //!   fine-tune that starts from it, or the speed-up that times it);
-//! - `eval/KEY/metrics.json` and `speedup/KEY.json`.
+//! - `eval/KEY/metrics.json` without its per-sample rows, and `speedup/KEY.json`.
 //!
 //! [`restore`] copies what the working folder lacks back into it, so the stages skip
 //! what is recorded; a dataset is generated again only if a stage still to run needs it.
@@ -196,7 +196,8 @@ pub fn save(plan: &Plan, out: &Path, ledger: &Ledger) -> Saved {
         }
         let m = out.join("eval").join(&r.key).join("metrics.json");
         if m.exists() {
-            saved.put(&m, rec.join("eval").join(&r.key).join("metrics.json"));
+            let to = rec.join("eval").join(&r.key).join("metrics.json");
+            saved.note(summary_metrics(&m).and_then(|b| put_bytes(&b, to)));
         }
         let s = out.join("speedup").join(format!("{}.json", r.key));
         if s.exists() {
@@ -229,6 +230,19 @@ impl Saved {
         let r = copy(from, &to).map(|w| w.then_some(to));
         self.note(r);
     }
+}
+
+/// An evaluation's `metrics.json` without its per-sample rows (`samples`: 0.6 MB for 396
+/// T-shirt test samples, and in the evaluation's `samples.csv` too), which the report
+/// does not read.
+fn summary_metrics(path: &Path) -> Result<Vec<u8>, EvalError> {
+    let bytes = std::fs::read(path).map_err(io(path))?;
+    let mut v: serde_json::Value = serde_json::from_slice(&bytes)
+        .map_err(|e| EvalError::Invalid(format!("{}: {e}", path.display())))?;
+    if let Some(o) = v.as_object_mut() {
+        o.remove("samples");
+    }
+    Ok(serde_json::to_vec_pretty(&v).expect("JSON serialises"))
 }
 
 /// Writes `bytes` to `to` (creating its folder) unless it holds them already; returns
@@ -367,7 +381,11 @@ samples = 2
     fn evaluate(out: &Path, key: &str) {
         let d = out.join("eval").join(key);
         std::fs::create_dir_all(&d).unwrap();
-        std::fs::write(d.join("metrics.json"), format!("{{\"run\": \"{key}\"}}")).unwrap();
+        std::fs::write(
+            d.join("metrics.json"),
+            format!("{{\"run\": \"{key}\", \"samples\": [{{\"id\": 7}}]}}"),
+        )
+        .unwrap();
     }
 
     #[test]
@@ -404,7 +422,11 @@ samples = 2
         // Evaluated: the weights stay while the fine-tune and the speed-up wait for them.
         evaluate(&out, "base");
         assert!(save(&p, &out, &ledger).warnings.is_empty());
-        assert!(rec.join("eval/base/metrics.json").exists());
+        // The evaluation without its per-sample rows.
+        let m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(rec.join("eval/base/metrics.json")).unwrap())
+                .unwrap();
+        assert_eq!(m, serde_json::json!({"run": "base"}));
         assert!(rb.join("best.bpk").exists());
 
         // A fresh machine resumes from the record: the base run is finished there and
