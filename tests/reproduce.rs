@@ -281,6 +281,32 @@ samples = 1
     );
     let md = std::fs::read_to_string(dir.join("docs-fresh/reproduction.md")).unwrap();
     assert!(!md.contains("| tshirt | `tiny` | – |"), "{md}");
+    // The paired differences read the record's per-sample Edist (rounded to 1e-4 cm) as
+    // they read the working folder's.
+    let paired = |md: &str, name: &str| -> (f64, f64) {
+        let row = md
+            .lines()
+            .find(|l| l.starts_with(&format!("| {name} | ")))
+            .unwrap_or_else(|| panic!("no {name} row: {md}"));
+        let cell: Vec<f64> = row
+            .split('|')
+            .nth(2)
+            .unwrap()
+            .split('±')
+            .map(|x| x.trim().parse().unwrap())
+            .collect();
+        let n: usize = row.split('|').nth(3).unwrap().trim().parse().unwrap();
+        assert!(n >= 2, "{row}");
+        (cell[0], cell[1])
+    };
+    let recorded = std::fs::read_to_string(dir.join("docs-recorded/reproduction.md")).unwrap();
+    for name in ["Local - Naive", "Local-RQ - Local"] {
+        let (a, b) = (paired(&md, name), paired(&recorded, name));
+        assert!(
+            (a.0 - b.0).abs() <= 1.5e-3 && (a.1 - b.1).abs() <= 1.5e-3,
+            "{name}: {a:?} {b:?}"
+        );
+    }
     // --status on a machine without the working folder reads the record.
     let (ok, status) = run(drape()
         .arg("reproduce")

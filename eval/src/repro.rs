@@ -537,6 +537,37 @@ impl Results {
         }
         s[field][usize::from(std)].as_f64()
     }
+
+    /// Run `a`'s network Edist minus run `b`'s on the test samples both evaluated (matched
+    /// by id): mean and standard error of the per-sample differences, and their count.
+    /// None unless both evaluations have per-sample rows and share at least two samples.
+    pub fn paired_edist(&self, a: &str, b: &str) -> Option<(f64, f64, usize)> {
+        let per_sample = |key: &str| -> Option<BTreeMap<i64, f64>> {
+            let rows = self.evals.get(key)?["samples"].as_array()?;
+            Some(
+                rows.iter()
+                    .filter_map(|r| {
+                        Some((
+                            r["id"].as_i64()?,
+                            r["methods"]["network"]["edist_cm"].as_f64()?,
+                        ))
+                    })
+                    .collect(),
+            )
+        };
+        let (pa, pb) = (per_sample(a)?, per_sample(b)?);
+        let d: Vec<f64> = pa
+            .iter()
+            .filter_map(|(id, x)| pb.get(id).map(|y| x - y))
+            .collect();
+        let n = d.len();
+        if n < 2 {
+            return None;
+        }
+        let mean = d.iter().sum::<f64>() / n as f64;
+        let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+        Some((mean, (var / n as f64).sqrt(), n))
+    }
 }
 
 /// One number of the report, with where it came from.
@@ -858,6 +889,22 @@ pub fn write_report(
             .and_then(|e| e["vertices"].as_u64())
             .map_or("–".to_string(), |v| v.to_string());
         writeln!(w, "Enorm on our {vertices}-vertex meshes is not directly comparable with the paper's 10k-vertex Enorm: finer meshes have smaller angles between neighbouring faces.\n").unwrap();
+        // Whether a gap between two runs is larger than what the test set can tell apart.
+        let pairs: Vec<String> = [
+            ("Local - Global", "tshirt-local", "tshirt-global"),
+            ("Global - Naive", "tshirt-global", "tshirt-naive"),
+            ("Local - Naive", "tshirt-local", "tshirt-naive"),
+            ("Local-RQ - Local", "tshirt-local-rq", "tshirt-local"),
+        ]
+        .iter()
+        .filter_map(|(name, a, b)| {
+            let (m, se, n) = r.paired_edist(a, b)?;
+            Some(format!("| {name} | {m:+.3} ± {se:.3} | {n} |"))
+        })
+        .collect();
+        if !pairs.is_empty() {
+            writeln!(w, "Edist differences between runs, paired over the test samples both evaluated: the mean of the per-sample differences ± its standard error. A gap within about two standard errors is one the test set cannot tell apart. Each run trained once, from one seed: how much a second seed would move a run is not in these errors.\n\n| difference | Edist (cm) | samples |\n|---|---|---|\n{}\n", pairs.join("\n")).unwrap();
+        }
     }
 
     // The paper's tables beside ours.
@@ -1343,6 +1390,33 @@ samples = 1
             }
         }
         assert_eq!(Ledger::default().hours().to_string(), "0");
+    }
+
+    #[test]
+    fn paired_differences_match_samples_by_id() {
+        let rows = |v: &[(i64, f64)]| {
+            serde_json::json!({"samples": v.iter().map(|(id, e)| serde_json::json!(
+                {"id": id, "methods": {"network": {"edist_cm": e}}}
+            )).collect::<Vec<_>>()})
+        };
+        let mut r = Results::default();
+        // Sample 9 only in `a`, sample 4 only in `b`: left out.
+        r.evals
+            .insert("a".into(), rows(&[(1, 2.0), (2, 3.0), (3, 2.5), (9, 7.0)]));
+        r.evals
+            .insert("b".into(), rows(&[(3, 2.0), (1, 1.0), (2, 3.0), (4, 0.0)]));
+        r.evals
+            .insert("c".into(), serde_json::json!({"summaries": {}}));
+        // Differences 1, 0, 0.5: mean 0.5, sample variance 0.25, standard error 0.5/sqrt 3.
+        let (m, se, n) = r.paired_edist("a", "b").unwrap();
+        assert_eq!(n, 3);
+        assert!((m - 0.5).abs() < 1e-12, "{m}");
+        assert!((se - 0.5 / 3f64.sqrt()).abs() < 1e-12, "{se}");
+        let (m, _, _) = r.paired_edist("b", "a").unwrap();
+        assert!((m + 0.5).abs() < 1e-12);
+        // No per-sample rows, or no run: nothing to pair.
+        assert!(r.paired_edist("a", "c").is_none());
+        assert!(r.paired_edist("a", "missing").is_none());
     }
 
     #[test]

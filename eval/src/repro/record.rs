@@ -10,7 +10,7 @@
 //! - `runs/KEY/`: a finished run's `config.toml`, `run.json`, `state.json`, `log.csv`, and
 //!   its `best.bpk` only while a stage not yet recorded still needs it (its evaluation, a
 //!   fine-tune that starts from it, or the speed-up that times it);
-//! - `eval/KEY/metrics.json` without its per-sample rows, and `speedup/KEY.json`.
+//! - `eval/KEY/metrics.json` with each sample's network Edist only, and `speedup/KEY.json`.
 //!
 //! [`restore`] copies what the working folder lacks back into it, so the stages skip
 //! what is recorded; a dataset is generated again only if a stage still to run needs it.
@@ -232,15 +232,24 @@ impl Saved {
     }
 }
 
-/// An evaluation's `metrics.json` without its per-sample rows (`samples`: 0.6 MB for 396
-/// T-shirt test samples, and in the evaluation's `samples.csv` too), which the report
-/// does not read.
+/// An evaluation's `metrics.json` with its per-sample rows cut to what the report reads:
+/// each sample's id and the network's Edist (to 1e-4 cm), for the paired differences
+/// between runs. The full rows (0.6 MB for 396 T-shirt test samples) stay in the working
+/// folder and its `samples.csv`.
 fn summary_metrics(path: &Path) -> Result<Vec<u8>, EvalError> {
     let bytes = std::fs::read(path).map_err(io(path))?;
     let mut v: serde_json::Value = serde_json::from_slice(&bytes)
         .map_err(|e| EvalError::Invalid(format!("{}: {e}", path.display())))?;
-    if let Some(o) = v.as_object_mut() {
-        o.remove("samples");
+    if let Some(rows) = v.get_mut("samples").and_then(|s| s.as_array_mut()) {
+        for row in rows.iter_mut() {
+            let edist = row["methods"]["network"]["edist_cm"]
+                .as_f64()
+                .map(|e| (e * 1e4).round() / 1e4);
+            *row = serde_json::json!({
+                "id": row["id"],
+                "methods": {"network": {"edist_cm": edist}},
+            });
+        }
     }
     Ok(serde_json::to_vec_pretty(&v).expect("JSON serialises"))
 }
@@ -383,7 +392,9 @@ samples = 2
         std::fs::create_dir_all(&d).unwrap();
         std::fs::write(
             d.join("metrics.json"),
-            format!("{{\"run\": \"{key}\", \"samples\": [{{\"id\": 7}}]}}"),
+            format!(
+                "{{\"run\": \"{key}\", \"samples\": [{{\"id\": 7, \"family\": \"dance\", \"methods\": {{\"dqs\": {{\"edist_cm\": 5.0}}, \"network\": {{\"edist_cm\": 2.123456, \"enorm_deg\": 18.0}}}}}}]}}"
+            ),
         )
         .unwrap();
     }
@@ -422,11 +433,16 @@ samples = 2
         // Evaluated: the weights stay while the fine-tune and the speed-up wait for them.
         evaluate(&out, "base");
         assert!(save(&p, &out, &ledger).warnings.is_empty());
-        // The evaluation without its per-sample rows.
+        // The evaluation with each sample's id and network Edist only.
         let m: serde_json::Value =
             serde_json::from_slice(&std::fs::read(rec.join("eval/base/metrics.json")).unwrap())
                 .unwrap();
-        assert_eq!(m, serde_json::json!({"run": "base"}));
+        assert_eq!(
+            m,
+            serde_json::json!({"run": "base", "samples": [
+                {"id": 7, "methods": {"network": {"edist_cm": 2.1235}}}
+            ]})
+        );
         assert!(rb.join("best.bpk").exists());
 
         // A fresh machine resumes from the record: the base run is finished there and
