@@ -564,9 +564,9 @@ impl Results {
         if n < 2 {
             return None;
         }
-        let mean = d.iter().sum::<f64>() / n as f64;
-        let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-        Some((mean, (var / n as f64).sqrt(), n))
+        // The standard error from the population deviation: s / sqrt(n - 1).
+        let (mean, std) = crate::metrics::mean_std(&d);
+        Some((mean, std / ((n - 1) as f64).sqrt(), n))
     }
 }
 
