@@ -75,7 +75,8 @@ pub struct Plan {
     /// Planned machine hours of all evaluations together.
     pub eval_planned_hours: f64,
     /// Datasets, generated in order; after each, the runs on the datasets made so far
-    /// train once there are at least `parallel_runs` of them to train (or it is the last).
+    /// train in multiples of `parallel_runs`, the rest with the next dataset's runs (all
+    /// after the last; [`split_group`]).
     pub datasets: Vec<PlanDataset>,
     /// Runs, started in order within those groups (a fine-tune once the run it starts
     /// from has finished).
@@ -224,6 +225,39 @@ impl Plan {
             + self.runs.iter().map(|r| r.planned_hours).sum::<f64>() / self.parallel_runs as f64
             + self.eval_planned_hours
     }
+}
+
+/// Which runs of a training group start once a dataset is made, and which wait for the
+/// next one: `group` holds the runs on the datasets made so far (in plan order within each
+/// dataset) and `unfinished` tells which still have to train. So that no slot idles while
+/// a lone run trains, the last `n % parallel_runs` of the `n` unfinished runs wait and
+/// join the next dataset's runs, except after the plan's last dataset, when all train.
+/// Finished runs go with the first part (to be evaluated if they are not yet). A waiting
+/// run never holds back a fine-tune of it: fine-tunes are listed after their base and
+/// train on a dataset made no earlier (checked by [`Plan::validate`]), so they come later
+/// in `group` and wait too.
+pub fn split_group<'a>(
+    group: &[&'a PlanRun],
+    unfinished: impl Fn(&PlanRun) -> bool,
+    parallel_runs: usize,
+    last_dataset: bool,
+) -> (Vec<&'a PlanRun>, Vec<&'a PlanRun>) {
+    let todo: Vec<usize> = (0..group.len()).filter(|&i| unfinished(group[i])).collect();
+    let wait = if last_dataset {
+        0
+    } else {
+        todo.len() % parallel_runs.max(1)
+    };
+    let waiting: BTreeSet<usize> = todo[todo.len() - wait..].iter().copied().collect();
+    let (mut now, mut later) = (Vec::new(), Vec::new());
+    for (i, &r) in group.iter().enumerate() {
+        if waiting.contains(&i) {
+            later.push(r);
+        } else {
+            now.push(r);
+        }
+    }
+    (now, later)
 }
 
 /// Measured time of each stage, kept in `OUT/stages.json` across interruptions (read by
@@ -1390,6 +1424,49 @@ samples = 1
             }
         }
         assert_eq!(Ledger::default().hours().to_string(), "0");
+    }
+
+    #[test]
+    fn a_lone_run_waits_for_the_next_dataset_but_not_after_the_last() {
+        let run = |key: &str, data: &str, init: Option<&str>| PlanRun {
+            key: key.into(),
+            config: PathBuf::from("c.toml"),
+            data: data.into(),
+            init: init.map(Into::into),
+            planned_hours: 1.0,
+            epochs: None,
+            wall_clock_minutes: None,
+        };
+        let runs = [
+            run("a", "t", None),
+            run("b", "t", None),
+            run("a-ft", "t", Some("a")),
+            run("c", "t", None),
+            run("s", "s", None),
+        ];
+        let keys = |v: &[&PlanRun]| v.iter().map(|r| r.key.clone()).collect::<Vec<_>>();
+        let tshirt: Vec<&PlanRun> = runs[..4].iter().collect();
+        // Four to train, two slots: all start.
+        let (now, later) = split_group(&tshirt, |_| true, 2, false);
+        assert_eq!(keys(&now), ["a", "b", "a-ft", "c"]);
+        assert!(later.is_empty());
+        // `b` finished: three to train, the last one waits; `b` goes along to be evaluated.
+        let (now, later) = split_group(&tshirt, |r| r.key != "b", 2, false);
+        assert_eq!(keys(&now), ["a", "b", "a-ft"]);
+        assert_eq!(keys(&later), ["c"]);
+        // It joins the next dataset's run and both train.
+        let next: Vec<&PlanRun> = vec![&runs[3], &runs[4]];
+        let (now, later) = split_group(&next, |_| true, 2, false);
+        assert_eq!((keys(&now), later.len()), (vec!["c".into(), "s".into()], 0));
+        // Only `a` and `a-ft` left of three slots: both wait, the fine-tune with its base.
+        let (now, later) = split_group(&tshirt, |r| r.key.starts_with('a'), 3, false);
+        assert_eq!(keys(&now), ["b", "c"]);
+        assert_eq!(keys(&later), ["a", "a-ft"]);
+        // After the last dataset nothing waits; one slot never makes a run wait.
+        let (now, _) = split_group(&tshirt, |r| r.key != "b", 2, true);
+        assert_eq!(now.len(), 4);
+        let (_, later) = split_group(&tshirt, |_| true, 1, false);
+        assert!(later.is_empty());
     }
 
     #[test]

@@ -261,9 +261,9 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
 }
 
 /// Runs the plan's unfinished stages: the datasets in turn, each followed by the training
-/// of the runs on the datasets made so far once there are `parallel_runs` of them to train
-/// (`parallel_runs` at once, each evaluated as it finishes); then the evaluations left and
-/// the speed-ups.
+/// of the runs on the datasets made so far in multiples of `parallel_runs` (the rest waits
+/// for the next dataset; [`eval::repro::split_group`]), `parallel_runs` at once, each
+/// evaluated as it finishes; then the evaluations left and the speed-ups.
 fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
@@ -345,17 +345,20 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
         save_record(plan, out, &ledger);
         // The runs on the datasets made so far train before the next dataset is made, so
         // that a session spends its hours on finished runs rather than on data a later
-        // session may have to make again; but only once there are enough of them to keep
-        // `parallel_runs` slots busy (or this is the last dataset).
+        // session may have to make again; but in multiples of `parallel_runs`, so that no
+        // slot idles beside a lone run: the rest waits for the next dataset's runs (all
+        // train after the last dataset).
         group.extend(plan.runs.iter().filter(|r| r.data == d.key));
-        let to_train = group
-            .iter()
-            .filter(|r| !finished_run(&run_dir(&r.key)))
-            .count();
-        if to_train >= plan.parallel_runs || to_train == 0 || k + 1 == plan.datasets.len() {
-            train_runs(ctx, plan, &group, out, clock)?;
-            group.clear();
+        let (now, later) = eval::repro::split_group(
+            &group,
+            |r| !finished_run(&run_dir(&r.key)),
+            plan.parallel_runs,
+            k + 1 == plan.datasets.len(),
+        );
+        if !now.is_empty() {
+            train_runs(ctx, plan, &now, out, clock)?;
         }
+        group = later;
     }
 
     let evaluated = || {
