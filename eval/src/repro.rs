@@ -97,6 +97,10 @@ pub struct Plan {
     /// kept in the repository so that the plan resumes on a fresh machine. None: no record.
     #[serde(default)]
     pub record: Option<PathBuf>,
+    /// Network widths of every run instead of its config's (`drape train --widths`), so
+    /// that a paper-scale plan trains the same configs at the paper's widths.
+    #[serde(default)]
+    pub widths: Option<learn::config::Widths>,
 }
 
 fn one() -> usize {
@@ -838,6 +842,15 @@ pub fn write_report(
             .join(", ")
     )
     .unwrap();
+    if let Some(wd) = plan.widths {
+        writeln!(
+            w,
+            "Every run trains at the {} widths (`widths` in the plan, `drape train --widths {}`), not its config's.\n",
+            wd.name(),
+            wd.name()
+        )
+        .unwrap();
+    }
 
     // The figures that decide the evaluation issue.
     let f = |k: &str, m: &str, field: &str| r.figure(k, m, field, false);
@@ -1424,6 +1437,59 @@ samples = 1
             }
         }
         assert_eq!(Ledger::default().hours().to_string(), "0");
+    }
+
+    #[test]
+    fn the_committed_plans_validate_and_their_configs_load() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let mut plans = 0;
+        for entry in std::fs::read_dir(root.join("configs/repro")).unwrap() {
+            let path = entry.unwrap().path();
+            if path.file_name().is_some_and(|n| n == "paper-tables.toml") {
+                continue;
+            }
+            let plan = Plan::load(&path).unwrap();
+            plans += 1;
+            let mut sizes = BTreeSet::new();
+            for d in &plan.datasets {
+                let c = dataset::config::DatasetConfig::load(&d.config)
+                    .unwrap_or_else(|e| panic!("{}: {}: {e}", path.display(), d.key));
+                assert_eq!(c.garment, d.key, "{}", path.display());
+                sizes.insert(c.resolution);
+            }
+            for r in &plan.runs {
+                let c = learn::config::TrainConfig::load(&root.join(&r.config))
+                    .unwrap_or_else(|e| panic!("{}: {}: {e}", path.display(), r.key));
+                let model = plan
+                    .widths
+                    .map_or(c.model.clone(), |w| c.model.with_widths(w));
+                model.validate().unwrap();
+                assert!(
+                    c.wall_clock_minutes > 0.0 || r.wall_clock_minutes.is_some_and(|m| m > 0.0)
+                );
+                if plan.name == "paper" {
+                    assert_eq!(
+                        (model.body_points, model.conv_width),
+                        (6890, 128),
+                        "{}",
+                        r.key
+                    );
+                }
+            }
+            // The paper-scale plan is the CPU plan's runs on the paper's 10k data.
+            if plan.name == "paper" {
+                let cpu = Plan::load(&root.join("configs/repro/cpu.toml")).unwrap();
+                let keys = |p: &Plan| {
+                    p.runs
+                        .iter()
+                        .map(|r| (r.key.clone(), r.config.clone(), r.init.clone()))
+                        .collect::<Vec<_>>()
+                };
+                assert_eq!(keys(&plan), keys(&cpu));
+                assert_eq!(sizes, BTreeSet::from([10000]));
+            }
+        }
+        assert!(plans >= 4, "{plans} plans");
     }
 
     #[test]

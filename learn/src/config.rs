@@ -47,6 +47,39 @@ impl Variant {
     }
 }
 
+/// A set of network widths, to train a config's losses and schedule at other widths
+/// (`drape train --widths`, a plan's `widths`): the variant, the neighbourhood sizes, the
+/// leaky slope and the length scale stay the config's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Widths {
+    /// [`ModelConfig::default`]: the CPU config.
+    Cpu,
+    /// [`ModelConfig::paper`]: 6,890 body points, 512-d global body feature, 8 heads.
+    Paper,
+}
+
+impl Widths {
+    /// The name `--widths` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Widths::Cpu => "cpu",
+            Widths::Paper => "paper",
+        }
+    }
+}
+
+impl std::str::FromStr for Widths {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(Widths::Cpu),
+            "paper" => Ok(Widths::Paper),
+            _ => Err(format!("widths {s:?}: cpu or paper")),
+        }
+    }
+}
+
 /// Network widths and neighbourhood sizes. Defaults: the CPU config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -127,6 +160,25 @@ impl ModelConfig {
             conv_heads: 8,
             fusion: vec![256, 128, 64],
             ..Self::default()
+        }
+    }
+
+    /// This config at the widths of `w`: the layer widths, body points, FeaStNet width and
+    /// heads and residual blocks of the preset, everything else (variant, neighbourhoods,
+    /// leaky slope, length scale) this config's.
+    pub fn with_widths(&self, w: Widths) -> Self {
+        let preset = match w {
+            Widths::Cpu => Self::default(),
+            Widths::Paper => Self::paper(self.variant),
+        };
+        Self {
+            variant: self.variant,
+            local_downsample: self.local_downsample,
+            local_pool_k: self.local_pool_k,
+            local_k: self.local_k,
+            leaky_slope: self.leaky_slope,
+            length_scale: self.length_scale,
+            ..preset
         }
     }
 
@@ -405,6 +457,29 @@ mod tests {
                 .map_err(|e| LearnError::Config(e.to_string()))?;
         c.validate()?;
         Ok(c)
+    }
+
+    #[test]
+    fn a_widths_preset_replaces_the_widths_and_keeps_the_rest() {
+        let c = parse("[model]\nvariant = \"global\"\nlocal_k = 9\nlength_scale = 0.2\n")
+            .unwrap()
+            .model;
+        let p = c.with_widths(Widths::Paper);
+        assert_eq!(p.variant, Variant::Global);
+        assert_eq!((p.local_k, p.length_scale), (9, 0.2));
+        assert_eq!((p.body_points, p.conv_width, p.conv_heads), (6890, 128, 8));
+        assert_eq!(p.body_mlp2.last(), Some(&512));
+        assert_eq!(p.fusion, [256, 128, 64]);
+        p.validate().unwrap();
+        // Back to the CPU widths: the config as it was.
+        assert_eq!(p.with_widths(Widths::Cpu), c);
+        assert_eq!("paper".parse::<Widths>(), Ok(Widths::Paper));
+        assert!(
+            "wide"
+                .parse::<Widths>()
+                .unwrap_err()
+                .contains("cpu or paper")
+        );
     }
 
     #[test]

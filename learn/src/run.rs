@@ -102,8 +102,14 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
     }
 }
 
-/// Loads `init`'s best weights into `model` after checking variant and garment.
-pub fn load_init(model: GarNet, init: &Path, info: &RunInfo) -> Result<GarNet, LearnError> {
+/// Loads `init`'s best weights into `model` (whose config is `want`) after checking that
+/// `init` has the same variant, widths and garment.
+pub fn load_init(
+    model: GarNet,
+    want: &crate::config::ModelConfig,
+    init: &Path,
+    info: &RunInfo,
+) -> Result<GarNet, LearnError> {
     let (config, old) = open_run(init)?;
     if config.model.variant != model.variant() {
         return Err(LearnError::Mismatch(format!(
@@ -111,6 +117,22 @@ pub fn load_init(model: GarNet, init: &Path, info: &RunInfo) -> Result<GarNet, L
             init.display(),
             config.model.variant.paper_name(),
             model.variant().paper_name()
+        )));
+    }
+    if &config.model != want {
+        return Err(LearnError::Mismatch(format!(
+            "{} was trained with other network widths or sizes than this config's [model] \
+             (theirs: {} body points, global feature {:?}, FeaStNet width {} with {} heads; \
+             this config's: {}, {:?}, {} with {}): fine-tune with the same widths (`--widths`)",
+            init.display(),
+            config.model.body_points,
+            config.model.body_mlp2.last(),
+            config.model.conv_width,
+            config.model.conv_heads,
+            want.body_points,
+            want.body_mlp2.last(),
+            want.conv_width,
+            want.conv_heads
         )));
     }
     if old.garment != info.garment || old.vertices != info.vertices {

@@ -419,7 +419,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         let op = opts.run.join("last-optim.bpk");
         optim = optim.load(&op).map_err(ck(&op))?;
     } else if let Some(init) = &opts.init {
-        model = crate::run::load_init(model, init, &info)?;
+        model = crate::run::load_init(model, &config.model, init, &info)?;
     }
     // max_train_samples: the same samples every epoch, the lowest ids of the split.
     let subset: Option<std::collections::HashSet<u64>> =

@@ -36,6 +36,12 @@ pub struct TrainArgs {
     /// Wall-clock cap of this invocation instead of the config's `wall_clock_minutes`.
     #[arg(long, value_name = "MINUTES")]
     wall_clock_minutes: Option<f64>,
+    /// Train at these network widths instead of the config's: `cpu` or `paper` (6,890
+    /// body points, 512-d global body feature, FeaStNet width 128 with 8 heads; meant for
+    /// a GPU). The losses, schedule and variant stay the config's; the run's config.toml
+    /// records the widths used.
+    #[arg(long, value_name = "WIDTHS")]
+    widths: Option<learn::config::Widths>,
 }
 
 /// Runs `drape train`.
@@ -46,6 +52,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     }
     if let Some(m) = args.wall_clock_minutes {
         config.wall_clock_minutes = m;
+    }
+    if let Some(w) = args.widths {
+        config.model = config.model.with_widths(w);
     }
     config.validate()?;
     let data = args.data.unwrap_or_else(|| config.data.clone());

@@ -568,6 +568,10 @@ fn train_runs(
                 a.push("--wall-clock-minutes".as_ref());
                 a.push(m.as_ref());
             }
+            if let Some(w) = plan.widths {
+                a.push("--widths".as_ref());
+                a.push(w.name().as_ref());
+            }
             let spent = lock(clock).hours();
             let log = log_of(&r.key);
             match threads {
