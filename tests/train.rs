@@ -125,6 +125,32 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         "{text}"
     );
 
+    // So is a fine-tune at other widths (`--widths paper` from a tiny-width run), and
+    // widths that do not exist.
+    let local = config(tmp.path(), 1, "local", "");
+    let (ok, text) = train(
+        &local,
+        &data,
+        &tmp.path().join("ft-paper"),
+        &[
+            "--init".as_ref(),
+            run_dir.as_os_str(),
+            "--widths".as_ref(),
+            "paper".as_ref(),
+        ],
+    );
+    assert!(
+        !ok && text.contains("other network widths") && text.contains("6890"),
+        "{text}"
+    );
+    let (ok, text) = train(
+        &local,
+        &data,
+        &tmp.path().join("ft-wide"),
+        &["--widths".as_ref(), "wide".as_ref()],
+    );
+    assert!(!ok && text.contains("cpu or paper"), "{text}");
+
     // A curvature fine-tune from the Local run: scales measured once and saved, finite
     // curvature terms logged.
     let mcrq = config(tmp.path(), 1, "local", "");
