@@ -143,6 +143,19 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         !ok && text.contains("other network widths") && text.contains("6890"),
         "{text}"
     );
+    // Refused before its folder was written: a retry with the right widths can use it.
+    assert!(!tmp.path().join("ft-paper/config.toml").exists());
+    // Resuming a run at other widths names them.
+    let (ok, text) = train(
+        &cfg,
+        &data,
+        &run_dir,
+        &["--widths".as_ref(), "paper".as_ref()],
+    );
+    assert!(
+        !ok && text.contains("another config") && text.contains("--widths"),
+        "{text}"
+    );
     let (ok, text) = train(
         &local,
         &data,

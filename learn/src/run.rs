@@ -76,8 +76,18 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 )));
             }
             if &old != config {
+                // Only the widths differ: a resume without the run's `--widths`.
+                let same_but_model = TrainConfig {
+                    model: config.model.clone(),
+                    ..old.clone()
+                } == *config;
+                let hint = if same_but_model {
+                    " (only the network widths differ: resume with the --widths the run started with)"
+                } else {
+                    ""
+                };
                 return Err(LearnError::Mismatch(format!(
-                    "{} holds a run of another config ({} records it); use another -o folder, or delete it",
+                    "{} holds a run of another config ({} records it){hint}; use another -o folder, or delete it",
                     run.display(),
                     cp.display()
                 )));
@@ -102,21 +112,21 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
     }
 }
 
-/// Loads `init`'s best weights into `model` (whose config is `want`) after checking that
-/// `init` has the same variant, widths and garment.
-pub fn load_init(
-    model: GarNet,
+/// Checks that the run `init` can start a run of network `want` on data `info`: the same
+/// variant, widths and garment. Called before the new run's folder is written, so that a
+/// refused fine-tune leaves nothing behind.
+pub fn check_init(
     want: &crate::config::ModelConfig,
     init: &Path,
     info: &RunInfo,
-) -> Result<GarNet, LearnError> {
+) -> Result<(), LearnError> {
     let (config, old) = open_run(init)?;
-    if config.model.variant != model.variant() {
+    if config.model.variant != want.variant {
         return Err(LearnError::Mismatch(format!(
             "{} is a {} run; this config trains {}",
             init.display(),
             config.model.variant.paper_name(),
-            model.variant().paper_name()
+            want.variant.paper_name()
         )));
     }
     if &config.model != want {
@@ -145,6 +155,18 @@ pub fn load_init(
             info.vertices
         )));
     }
+    Ok(())
+}
+
+/// Loads `init`'s best weights into `model` (whose config is `want`) after
+/// [`check_init`].
+pub fn load_init(
+    model: GarNet,
+    want: &crate::config::ModelConfig,
+    init: &Path,
+    info: &RunInfo,
+) -> Result<GarNet, LearnError> {
+    check_init(want, init, info)?;
     load_model(model, &init.join("best.bpk"))
 }
 

@@ -402,6 +402,14 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         init: opts.init.clone(),
         curvature_scales: None,
     };
+    // A fine-tune that cannot start from `init` is refused before its folder is written.
+    if let Some(init) = opts
+        .init
+        .as_ref()
+        .filter(|_| !opts.run.join("last.bpk").exists())
+    {
+        crate::run::check_init(&config.model, init, &info)?;
+    }
     crate::run::prepare_folder(&opts.run, config, &info)?;
     let mut state = State::load(&opts.run)?.unwrap_or_default();
     if state.finished {

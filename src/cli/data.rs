@@ -16,7 +16,8 @@ use super::Context;
 pub struct GenArgs {
     /// Dataset config: a built-in name (tiny, small, cpu-reference, cpu-reference-sweater,
     /// cpu-reference-dress, cpu-reference-jeans, cpu-repro-tshirt, cpu-repro-sweater,
-    /// cpu-repro-dress, cpu-repro-jeans, paper) or a TOML file.
+    /// cpu-repro-dress, cpu-repro-jeans, paper-tshirt, paper-sweater, paper-dress,
+    /// paper-jeans) or a TOML file.
     pub config: String,
     /// Output folder (created; running again resumes).
     #[arg(short, long, value_name = "DIR")]
