@@ -72,11 +72,10 @@ impl Widths {
 impl std::str::FromStr for Widths {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "cpu" => Ok(Widths::Cpu),
-            "paper" => Ok(Widths::Paper),
-            _ => Err(format!("widths {s:?}: cpu or paper")),
-        }
+        [Widths::Cpu, Widths::Paper]
+            .into_iter()
+            .find(|w| w.name() == s)
+            .ok_or_else(|| format!("widths {s:?}: cpu or paper"))
     }
 }
 

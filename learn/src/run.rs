@@ -12,7 +12,7 @@ use serde::de::DeserializeOwned;
 use crate::LearnError;
 use crate::config::TrainConfig;
 use crate::model::GarNet;
-use crate::train::{RunInfo, State, ck, load_model, model_bytes};
+use crate::train::{RunInfo, State, ck, model_bytes};
 
 fn io(path: &Path) -> impl Fn(std::io::Error) -> LearnError + '_ {
     move |e| LearnError::Io {
@@ -76,13 +76,13 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 )));
             }
             if &old != config {
-                // Only the widths differ: a resume without the run's `--widths`.
+                // Only [model] differs: likely a resume without the run's `--widths`.
                 let same_but_model = TrainConfig {
                     model: config.model.clone(),
                     ..old.clone()
                 } == *config;
                 let hint = if same_but_model {
-                    " (only the network widths differ: resume with the --widths the run started with)"
+                    " (only its [model] differs: resume with the --widths the run started with, if any)"
                 } else {
                     ""
                 };
@@ -156,18 +156,6 @@ pub fn check_init(
         )));
     }
     Ok(())
-}
-
-/// Loads `init`'s best weights into `model` (whose config is `want`) after
-/// [`check_init`].
-pub fn load_init(
-    model: GarNet,
-    want: &crate::config::ModelConfig,
-    init: &Path,
-    info: &RunInfo,
-) -> Result<GarNet, LearnError> {
-    check_init(want, init, info)?;
-    load_model(model, &init.join("best.bpk"))
 }
 
 /// Reads a run folder's config and info.

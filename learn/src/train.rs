@@ -402,12 +402,11 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         init: opts.init.clone(),
         curvature_scales: None,
     };
-    // A fine-tune that cannot start from `init` is refused before its folder is written.
-    if let Some(init) = opts
-        .init
-        .as_ref()
-        .filter(|_| !opts.run.join("last.bpk").exists())
-    {
+    // A fresh fine-tune: `init` is checked before the run's folder is written, so that a
+    // refused one leaves nothing behind; its weights are loaded below.
+    let last = opts.run.join("last.bpk");
+    let init = opts.init.as_ref().filter(|_| !last.exists());
+    if let Some(init) = init {
         crate::run::check_init(&config.model, init, &info)?;
     }
     crate::run::prepare_folder(&opts.run, config, &info)?;
@@ -421,13 +420,12 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     let mut optim = AdamConfig::new()
         .with_epsilon(config.adam_epsilon as f32)
         .init();
-    let last = opts.run.join("last.bpk");
     if last.exists() {
         model = load_model(model, &last)?;
         let op = opts.run.join("last-optim.bpk");
         optim = optim.load(&op).map_err(ck(&op))?;
-    } else if let Some(init) = &opts.init {
-        model = crate::run::load_init(model, &config.model, init, &info)?;
+    } else if let Some(init) = init {
+        model = load_model(model, &init.join("best.bpk"))?;
     }
     // max_train_samples: the same samples every epoch, the lowest ids of the split.
     let subset: Option<std::collections::HashSet<u64>> =
