@@ -2,7 +2,7 @@
 //! fine-tune from it, evaluates both, times the speed-up and writes the report with our
 //! numbers beside the paper's; a second run resumes without redoing anything; a plan's
 //! record lets a fresh working folder resume without the data; a spent budget stops it
-//! with a clear message.
+//! with a clear message; a slot the runs leave free makes the next dataset.
 
 mod common;
 
@@ -443,6 +443,126 @@ samples = 1
     assert!(
         !ok && text.contains("holds dataset \"tiny\"") && text.contains("another working folder"),
         "{text}"
+    );
+}
+
+/// A slot that the runs of a dataset leave free, with nothing left to train or evaluate
+/// beside the last run, makes the next dataset meanwhile, timed as its own stage.
+#[test]
+fn reproduce_makes_the_next_dataset_on_a_slot_the_runs_leave_free() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let tiny = std::fs::read_to_string("configs/train/tiny.toml").unwrap();
+    std::fs::write(dir.join("local.toml"), &tiny).unwrap();
+    std::fs::write(
+        dir.join("naive.toml"),
+        tiny.replace("variant = \"local\"", "variant = \"naive\""),
+    )
+    .unwrap();
+    // The naive run (1 epoch) and its evaluation end long before the local one (60
+    // epochs): its slot then makes dataset b.
+    std::fs::write(
+        dir.join("plan.toml"),
+        format!(
+            r#"name = "fill"
+budget_hours = 1.0
+eval_planned_hours = 0.01
+parallel_runs = 2
+
+[[datasets]]
+key = "a"
+config = "tiny"
+planned_hours = 0.01
+
+[[datasets]]
+key = "b"
+config = "tiny"
+planned_hours = 0.01
+
+[[runs]]
+key = "a-local"
+config = "{0}/local.toml"
+data = "a"
+planned_hours = 0.01
+epochs = 60
+
+[[runs]]
+key = "a-naive"
+config = "{0}/naive.toml"
+data = "a"
+planned_hours = 0.01
+epochs = 1
+
+[[runs]]
+key = "b-naive"
+config = "{0}/naive.toml"
+data = "b"
+planned_hours = 0.01
+epochs = 1
+
+[speedup]
+runs = []
+samples = 1
+"#,
+            dir.display()
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let (ok, text) = run(drape()
+        .arg("reproduce")
+        .arg(dir.join("plan.toml"))
+        .arg("-o")
+        .arg(&out)
+        .arg("--docs")
+        .arg(dir.join("docs")));
+    assert!(ok, "{text}");
+    let at = |s: &str| {
+        text.find(s)
+            .unwrap_or_else(|| panic!("{s:?} missing: {text}"))
+    };
+    // Started beside a-local, after a-naive's evaluation, on that slot's one thread.
+    let fill = at("== gen b on 1 thread(s) beside the training, log ");
+    assert!(at("== eval a-naive: done") < fill, "{text}");
+    assert!(fill < at("== train a-local: finished"), "{text}");
+    assert!(out.join("logs/gen-b.log").exists());
+    // Either it finished there (and its own stage had nothing left to do) or it was
+    // stopped when a-local ended and its own stage resumed it.
+    if text.contains("== gen b: finished beside the training") {
+        assert!(!text.contains("== gen b ("), "{text}");
+    } else {
+        assert!(
+            text.contains("== gen b beside the training: stopped") && text.contains("== gen b ("),
+            "{text}"
+        );
+    }
+    assert!(out.join("data/b/manifest.json").exists());
+    let ledger: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("stages.json")).unwrap()).unwrap();
+    assert!(
+        ledger["done"]
+            .as_object()
+            .unwrap()
+            .values()
+            .all(|v| v == true),
+        "{ledger}"
+    );
+    // Its time is its stage's; made beside a-local, the machine counts it once.
+    let secs = |k: &str| ledger["seconds"][k].as_f64().unwrap();
+    let stages: f64 = ledger["seconds"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|v| v.as_f64().unwrap())
+        .sum();
+    let machine = ledger["machine_seconds"].as_f64().unwrap();
+    assert!(secs("gen b") > 0.0, "{ledger}");
+    if text.contains("== gen b: finished beside the training") {
+        assert!(machine <= stages - secs("gen b") + 0.5, "{ledger}");
+    }
+    assert!(
+        machine + 2.0 >= secs("gen a") + secs("train a-local") + secs("train b-naive"),
+        "{ledger}"
     );
 }
 

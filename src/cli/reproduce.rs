@@ -150,6 +150,128 @@ impl Drop for Children<'_> {
     }
 }
 
+/// The next dataset's `drape gen`, started on a training slot that no run will take
+/// (`train_runs`): its stage name and process; killed if this is dropped.
+struct Filler(Option<(String, Child)>);
+
+impl Filler {
+    /// Starts `drape gen` of dataset `d` on `threads` threads as stage `gen KEY`, its
+    /// output to OUT/logs/gen-KEY.log. A child that cannot start is reported and left to
+    /// the dataset's own stage.
+    fn start(
+        &mut self,
+        ctx: &Context,
+        d: &eval::repro::PlanDataset,
+        threads: usize,
+        out: &Path,
+        clock: &Mutex<Clock>,
+    ) -> anyhow::Result<()> {
+        let name = format!("gen {}", d.key);
+        let dir = data_dir(out, &d.key);
+        let (t, gate) = (
+            threads.to_string(),
+            d.max_failure_rate.map(|r| r.to_string()),
+        );
+        let mut a: Vec<&std::ffi::OsStr> = vec![
+            "gen".as_ref(),
+            d.config.as_ref(),
+            "-o".as_ref(),
+            dir.as_os_str(),
+            "--threads".as_ref(),
+            t.as_ref(),
+        ];
+        if let Some(g) = &gate {
+            a.push("--max-failure-rate".as_ref());
+            a.push(g.as_ref());
+        }
+        let log = out.join("logs").join(format!("gen-{}.log", d.key));
+        std::fs::create_dir_all(out.join("logs"))?;
+        match spawn(ctx, &a, Some(threads), Some(&log)) {
+            Ok(c) => {
+                println!(
+                    "== {name} on {threads} thread(s) beside the training, log {}",
+                    log.display()
+                );
+                lock(clock).start(&name)?;
+                self.0 = Some((name, c));
+            }
+            Err(e) => println!(
+                "== {name} did not start beside the training ({e}); its own stage makes it"
+            ),
+        }
+        Ok(())
+    }
+
+    /// Ends the stage once the child has exited: done if it succeeded and left a manifest
+    /// (a failure is the dataset's own stage's to report: it runs `drape gen` again).
+    fn poll(&mut self, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
+        let exited = match &mut self.0 {
+            Some((_, c)) => c.try_wait().map(|s| s.map(|s| s.success())),
+            None => return Ok(()),
+        };
+        let ok = match exited {
+            Ok(None) => return Ok(()),
+            Ok(Some(ok)) => ok,
+            Err(_) => false,
+        };
+        self.end(ok, "exited with an error", plan, out, clock)
+    }
+
+    /// Stops the child if it still runs (the training it filled in for has ended): its
+    /// stage ends unfinished and resumes as the dataset's own stage, on all threads.
+    fn stop(&mut self, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
+        let Some((_, c)) = &mut self.0 else {
+            return Ok(());
+        };
+        let ok = match c.try_wait() {
+            Ok(Some(s)) => s.success(),
+            _ => {
+                let _ = c.kill();
+                let _ = c.wait();
+                false
+            }
+        };
+        self.end(ok, "stopped: the training ended first", plan, out, clock)
+    }
+
+    /// Ends the stage; `why`: what happened if it did not finish.
+    fn end(
+        &mut self,
+        ok: bool,
+        why: &str,
+        plan: &Plan,
+        out: &Path,
+        clock: &Mutex<Clock>,
+    ) -> anyhow::Result<()> {
+        let Some((name, _)) = self.0.take() else {
+            return Ok(());
+        };
+        let key = name.trim_start_matches("gen ");
+        let done = ok && data_dir(out, key).join("manifest.json").exists();
+        lock(clock).end(&name, done)?;
+        let hours = lock(clock).stage_hours(&name);
+        if done {
+            println!("== {name}: finished beside the training ({hours:.2} h)");
+            let ledger = lock(clock).ledger.clone();
+            save_record(plan, out, &ledger);
+        } else {
+            println!(
+                "== {name} beside the training: {why} ({hours:.2} h); its own stage resumes it"
+            );
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Filler {
+    fn drop(&mut self) {
+        if let Some((_, c)) = &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
 fn lock(clock: &Mutex<Clock>) -> std::sync::MutexGuard<'_, Clock> {
     clock.lock().unwrap_or_else(|e| e.into_inner())
 }
@@ -263,7 +385,8 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
 /// Runs the plan's unfinished stages: the datasets in turn, each followed by the training
 /// of the runs on the datasets made so far in multiples of `parallel_runs` (the rest waits
 /// for the next dataset; [`eval::repro::split_group`]), `parallel_runs` at once, each
-/// evaluated as it finishes; then the evaluations left and the speed-ups.
+/// evaluated as it finishes, and the next dataset made on a slot those runs leave free;
+/// then the evaluations left and the speed-ups.
 fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
@@ -356,7 +479,13 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
             k + 1 == plan.datasets.len(),
         );
         if !now.is_empty() {
-            train_runs(ctx, plan, &now, out, clock)?;
+            // The next dataset, if it still has to be made: a slot that no run of `now`
+            // will take makes it meanwhile.
+            let fill = plan.datasets.get(k + 1).filter(|n| {
+                !data_dir(&n.key).join("manifest.json").exists()
+                    && eval::repro::record::data_needed(plan, out, &n.key)
+            });
+            train_runs(ctx, plan, &now, fill, out, clock)?;
         }
         group = later;
     }
@@ -463,10 +592,17 @@ fn over_budget(plan: &Plan, clock: &Mutex<Clock>, name: &str) -> anyhow::Result<
 /// more than one at once, each child's output goes to OUT/logs/. Returns once every run has
 /// finished and its evaluation ended (a failed evaluation is left to the eval stage), or
 /// fails naming the runs that did not finish (the others are left to finish first).
+///
+/// `fill`: the next dataset to make. Once a slot frees that no run here will take (nothing
+/// waits to train or to be evaluated, and a run still trains: the last of a group rarely
+/// ends with the others), `drape gen` makes it on that slot's threads, as its own stage
+/// `gen KEY` timed beside the runs. If the runs end first it is stopped (generation
+/// resumes) and its stage goes on later on all threads.
 fn train_runs(
     ctx: &Context,
     plan: &Plan,
     runs: &[&PlanRun],
+    fill: Option<&eval::repro::PlanDataset>,
     out: &Path,
     clock: &Mutex<Clock>,
 ) -> anyhow::Result<()> {
@@ -496,6 +632,8 @@ fn train_runs(
         std::fs::create_dir_all(out.join("logs"))?;
     }
     let mut running = Children(Vec::new());
+    let mut fill = fill;
+    let mut filler = Filler(None);
     let mut failures: Vec<String> = Vec::new();
     let mut status_at = Instant::now();
     loop {
@@ -593,10 +731,23 @@ fn train_runs(
                 Err(e) => failures.push(format!("{name} did not start: {e}")),
             }
         }
+        if failures.is_empty()
+            && pending.is_empty()
+            && to_eval.is_empty()
+            && !running.0.is_empty()
+            && running.0.len() < parallel
+        {
+            if let Some(d) = fill.take() {
+                let t = threads.unwrap_or(1) * (parallel - running.0.len());
+                filler.start(ctx, d, t, out, clock)?;
+            }
+        }
         if running.0.is_empty() {
+            filler.stop(plan, out, clock)?;
             break;
         }
         std::thread::sleep(std::time::Duration::from_secs(1));
+        filler.poll(plan, out, clock)?;
         let mut k = 0;
         while k < running.0.len() {
             let status = match running.0[k].2.try_wait() {
