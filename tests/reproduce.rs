@@ -15,14 +15,8 @@ fn reproduce_runs_a_tiny_plan_resumes_and_keeps_to_its_budget() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     // The configs keep tiny's 150 epochs: the plan shortens each run to 3 (`epochs`).
-    let tiny = std::fs::read_to_string("configs/train/tiny.toml").unwrap();
+    let tiny = tiny_configs(dir);
     assert!(tiny.contains("epochs = 150"));
-    std::fs::write(dir.join("local.toml"), &tiny).unwrap();
-    std::fs::write(
-        dir.join("naive.toml"),
-        tiny.replace("variant = \"local\"", "variant = \"naive\""),
-    )
-    .unwrap();
     std::fs::write(
         dir.join("rq.toml"),
         format!("{tiny}\n[loss]\nvert = 1.0\nphysics_scale = 0.1\nrq = [500.0, 50.0, 10.0]\n"),
@@ -452,13 +446,7 @@ samples = 1
 fn reproduce_makes_the_next_dataset_on_a_slot_the_runs_leave_free() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let tiny = std::fs::read_to_string("configs/train/tiny.toml").unwrap();
-    std::fs::write(dir.join("local.toml"), &tiny).unwrap();
-    std::fs::write(
-        dir.join("naive.toml"),
-        tiny.replace("variant = \"local\"", "variant = \"naive\""),
-    )
-    .unwrap();
+    tiny_configs(dir);
     // The naive run (1 epoch) and its evaluation end long before the local one (60
     // epochs): its slot then makes dataset b.
     std::fs::write(
@@ -564,6 +552,19 @@ samples = 1
         machine + 2.0 >= secs("gen a") + secs("train a-local") + secs("train b-naive"),
         "{ledger}"
     );
+}
+
+/// Writes the tiny training config as DIR/local.toml and its Naive twin as DIR/naive.toml;
+/// returns the config's text.
+fn tiny_configs(dir: &Path) -> String {
+    let tiny = std::fs::read_to_string("configs/train/tiny.toml").unwrap();
+    std::fs::write(dir.join("local.toml"), &tiny).unwrap();
+    std::fs::write(
+        dir.join("naive.toml"),
+        tiny.replace("variant = \"local\"", "variant = \"naive\""),
+    )
+    .unwrap();
+    tiny
 }
 
 /// The table row of `stage` in `drape reproduce --status` output.

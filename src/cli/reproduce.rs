@@ -150,40 +150,42 @@ impl Drop for Children<'_> {
     }
 }
 
-/// The next dataset's `drape gen`, started on a training slot that no run will take
-/// (`train_runs`): its stage name and process; killed if this is dropped.
-struct Filler(Option<(String, Child)>);
+/// The `drape gen` arguments that make dataset `d` in `dir`, with the plan's failure gate.
+fn gen_args(d: &eval::repro::PlanDataset, dir: &Path) -> Vec<std::ffi::OsString> {
+    let mut a: Vec<std::ffi::OsString> = vec![
+        "gen".into(),
+        d.config.clone().into(),
+        "-o".into(),
+        dir.into(),
+    ];
+    if let Some(r) = d.max_failure_rate {
+        a.push("--max-failure-rate".into());
+        a.push(r.to_string().into());
+    }
+    a
+}
 
-impl Filler {
+/// The next dataset's `drape gen`, started on a training slot that no run will take
+/// (`train_runs`): its dataset and process; killed if this is dropped.
+struct Filler<'p>(Option<(&'p eval::repro::PlanDataset, Child)>);
+
+impl<'p> Filler<'p> {
     /// Starts `drape gen` of dataset `d` on `threads` threads as stage `gen KEY`, its
     /// output to OUT/logs/gen-KEY.log. A child that cannot start is reported and left to
     /// the dataset's own stage.
     fn start(
         &mut self,
         ctx: &Context,
-        d: &eval::repro::PlanDataset,
+        d: &'p eval::repro::PlanDataset,
         threads: usize,
         out: &Path,
         clock: &Mutex<Clock>,
     ) -> anyhow::Result<()> {
         let name = format!("gen {}", d.key);
-        let dir = data_dir(out, &d.key);
-        let (t, gate) = (
-            threads.to_string(),
-            d.max_failure_rate.map(|r| r.to_string()),
-        );
-        let mut a: Vec<&std::ffi::OsStr> = vec![
-            "gen".as_ref(),
-            d.config.as_ref(),
-            "-o".as_ref(),
-            dir.as_os_str(),
-            "--threads".as_ref(),
-            t.as_ref(),
-        ];
-        if let Some(g) = &gate {
-            a.push("--max-failure-rate".as_ref());
-            a.push(g.as_ref());
-        }
+        let mut a = gen_args(d, &data_dir(out, &d.key));
+        a.push("--threads".into());
+        a.push(threads.to_string().into());
+        let a: Vec<&std::ffi::OsStr> = a.iter().map(|x| x.as_os_str()).collect();
         let log = out.join("logs").join(format!("gen-{}.log", d.key));
         std::fs::create_dir_all(out.join("logs"))?;
         match spawn(ctx, &a, Some(threads), Some(&log)) {
@@ -193,7 +195,7 @@ impl Filler {
                     log.display()
                 );
                 lock(clock).start(&name)?;
-                self.0 = Some((name, c));
+                self.0 = Some((d, c));
             }
             Err(e) => println!(
                 "== {name} did not start beside the training ({e}); its own stage makes it"
@@ -243,11 +245,11 @@ impl Filler {
         out: &Path,
         clock: &Mutex<Clock>,
     ) -> anyhow::Result<()> {
-        let Some((name, _)) = self.0.take() else {
+        let Some((d, _)) = self.0.take() else {
             return Ok(());
         };
-        let key = name.trim_start_matches("gen ");
-        let done = ok && data_dir(out, key).join("manifest.json").exists();
+        let name = format!("gen {}", d.key);
+        let done = ok && data_dir(out, &d.key).join("manifest.json").exists();
         lock(clock).end(&name, done)?;
         let hours = lock(clock).stage_hours(&name);
         if done {
@@ -263,7 +265,7 @@ impl Filler {
     }
 }
 
-impl Drop for Filler {
+impl Drop for Filler<'_> {
     fn drop(&mut self) {
         if let Some((_, c)) = &mut self.0 {
             let _ = c.kill();
@@ -419,7 +421,6 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
     let mut group: Vec<&PlanRun> = Vec::new();
     for (k, d) in plan.datasets.iter().enumerate() {
         let dir = data_dir(&d.key);
-        let gate = d.max_failure_rate.map(|r| r.to_string());
         // Done once `drape gen` has exited successfully (recorded in the ledger): a
         // manifest alone may belong to a dataset above its failure gate. Running gen on a
         // finished dataset only checks it again.
@@ -452,16 +453,8 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
                 || !eval::repro::record::data_needed(plan, out, &d.key)
         };
         stage(&name, &passed, &manifest, &mut || {
-            let mut a: Vec<&std::ffi::OsStr> = vec![
-                "gen".as_ref(),
-                d.config.as_ref(),
-                "-o".as_ref(),
-                dir.as_os_str(),
-            ];
-            if let Some(g) = &gate {
-                a.push("--max-failure-rate".as_ref());
-                a.push(g.as_ref());
-            }
+            let a = gen_args(d, &dir);
+            let a: Vec<&std::ffi::OsStr> = a.iter().map(|x| x.as_os_str()).collect();
             child(ctx, &name, &a)
         })?;
         let ledger = lock(clock).ledger.clone();
