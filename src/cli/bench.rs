@@ -488,15 +488,31 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
     let n = reports.len().max(1) as f64;
     let mean = |f: &dyn Fn(&DrapeReport) -> f64| reports.iter().map(f).sum::<f64>() / n;
     println!(
-        "time per stage on {cores} threads (mean, s): body {:.3}, detect {:.3}, predict {:.3}, solve {:.3}, collide {:.3}, velocities {:.3}, verify {:.3}",
+        "time per stage on {cores} threads (mean, s): body {:.3}, detect {:.3}, predict {:.3}, solve {:.3}, collide {:.3}, velocities {:.3}, polish {:.3}, verify {:.3}",
         mean(&|r| r.stage_times.body),
         mean(&|r| r.stage_times.detect),
         mean(&|r| r.stage_times.predict),
         mean(&|r| r.stage_times.solve),
         mean(&|r| r.stage_times.collide),
         mean(&|r| r.stage_times.velocities),
+        mean(&|r| r.polish.map_or(0.0, |p| p.time)),
         mean(&|r| r.verify_time),
     );
+    let polished: Vec<_> = reports.iter().filter_map(|r| r.polish).collect();
+    if !polished.is_empty() {
+        let m = polished.len() as f64;
+        let avg = |f: &dyn Fn(&sim::cloth::polish::PolishStats) -> f64| {
+            polished.iter().map(f).sum::<f64>() / m
+        };
+        println!(
+            "strain polish (mean of {} drapes): {:.0} sweeps, p95 strain {:.2}% before, particles moved {:.2} mm on average, {:.2} mm at most",
+            polished.len(),
+            avg(&|p| p.sweeps as f64),
+            avg(&|p| p.strain_p95_before as f64 * 100.0),
+            avg(&|p| p.mean_move as f64 * 1e3),
+            polished.iter().map(|p| p.max_move).fold(0.0f32, f32::max) * 1e3,
+        );
+    }
     if let Some(mb) = peak_memory_mb() {
         println!("peak memory of this process: {mb:.0} MB");
     }

@@ -205,6 +205,18 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
         r.penetration.count,
         r.penetration.max_depth * 1e3,
     );
+    if let Some(p) = &r.polish {
+        println!(
+            "strain polish: {} sweeps, {} of {} particles held at the body; p95 strain {:.2}% before; particles moved {:.2} mm on average, {:.2} mm at most; {:.3} s",
+            p.sweeps,
+            p.held,
+            r.particles,
+            p.strain_p95_before * 100.0,
+            p.mean_move * 1e3,
+            p.max_move * 1e3,
+            p.time,
+        );
+    }
     match &r.failure {
         None => {
             println!("converged -> {}", args.output.display());

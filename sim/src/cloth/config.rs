@@ -12,6 +12,10 @@ fn is_one(n: &u32) -> bool {
     *n == 1
 }
 
+fn is_zero(n: &u32) -> bool {
+    *n == 0
+}
+
 /// The built-in configuration file.
 pub const DEFAULT_TOML: &str = include_str!("../../../configs/sim/default.toml");
 
@@ -58,6 +62,13 @@ pub struct SimConfig {
     /// for 1,500 frames. Left out of the serialised config when false.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub elastic_pushout: bool,
+    /// Sweeps of the strain polish once a drape is at rest (default 100; 0: none): the
+    /// stretch the solver's sweeps leave in the hanging cloth projected out, the particles
+    /// near the body held (`polish.rs`, docs/sim.md). Left out of the serialised config at 0,
+    /// so a config pinned to 0 keeps the hash it had before the field; a manifest without
+    /// it (all written before the field) reads as 0 (`Manifest::dataset_config`).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub polish_sweeps: u32,
     /// Gravity (m/s^2, default (0, -9.81, 0)).
     pub gravity: [f32; 3],
     /// Velocity damping (1/s, default 2): velocities decay as exp(-damping t).
@@ -126,6 +137,7 @@ impl Default for SimConfig {
             stretch_iterations: 5,
             settle_substeps: 20,
             elastic_pushout: false,
+            polish_sweeps: 100,
             gravity: [0.0, -9.81, 0.0],
             damping: 2.0,
             max_velocity: 5.0,
@@ -300,6 +312,12 @@ impl SimConfig {
             return Err(format!(
                 "stretch_iterations = {} must lie in 1 to 16",
                 self.stretch_iterations
+            ));
+        }
+        if self.polish_sweeps > 100_000 {
+            return Err(format!(
+                "polish_sweeps = {} must lie in 0 to 100,000",
+                self.polish_sweeps
             ));
         }
         if self.rest_frames == 0 || self.max_frames == 0 {

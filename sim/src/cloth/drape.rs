@@ -22,6 +22,7 @@ use serde::Serialize;
 
 use super::collision::{BodyCollider, Hit};
 use super::model::ClothModel;
+use super::polish::{self, PolishStats};
 use super::solver::{Solver, StageTimes};
 use super::{SimConfig, SimError};
 use crate::body::{BodyError, BodyModel, Pose, ShapeParams, ShapedBody};
@@ -357,6 +358,10 @@ pub struct DrapeReport {
     /// worn size's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub top_drop: Option<f32>,
+    /// What the strain polish did (None when it did not run: `polish_sweeps` = 0, or the
+    /// drape failed before it). `strain` is measured after it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub polish: Option<PolishStats>,
 }
 
 impl DrapeReport {
@@ -739,10 +744,22 @@ pub fn drape(
         }
     }
 
-    // Push-out and verification.
-    let t = Instant::now();
     let mut x = solver.positions();
     let finite = x.iter().all(|p| p.is_finite());
+    // The strain polish of a drape at rest.
+    let polished = (failure.is_none() && finite && config.polish_sweeps > 0).then(|| {
+        polish::polish(
+            model,
+            &body,
+            &mut x,
+            config.thickness,
+            config.polish_sweeps,
+            parallel,
+        )
+    });
+
+    // Push-out and verification.
+    let t = Instant::now();
     let (before, after) = if finite {
         push_out(&body, &mut x, config.thickness, parallel)
     } else {
@@ -813,6 +830,7 @@ pub fn drape(
         kinetic_energy: last.1,
         last_displacement: last.0,
         top_drop: None,
+        polish: polished,
     };
     DrapeResult {
         positions: x,
@@ -847,6 +865,7 @@ mod tests {
             kinetic_energy: 0.0,
             last_displacement: 0.0,
             top_drop: None,
+            polish: None,
         }
     }
 

@@ -7,6 +7,7 @@
 //! - [`collision`]: the body in a BVH, closest points, pseudo-normals, contacts.
 //! - [`solver`]: the time step, stage by stage.
 //! - [`drape`]: the drape protocols and the quality report.
+//! - [`polish`]: the strain polish of a drape at rest.
 
 pub mod collision;
 pub mod coloring;
@@ -14,6 +15,7 @@ pub mod config;
 pub mod constraints;
 pub mod drape;
 pub mod model;
+pub mod polish;
 pub mod scene;
 pub mod self_collision;
 pub mod solver;

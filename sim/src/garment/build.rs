@@ -367,6 +367,8 @@ pub fn settle(
         // The templates were relaxed with one stretch sweep per substep; their 30 substeps
         // already remove the sag.
         stretch_iterations: 1,
+        // Templates are relaxed as before the strain polish (session 24).
+        polish_sweeps: 0,
         max_frames: config.max_frames.max(RELAX_MAX_FRAMES),
         damping: config.damping.max(RELAX_DAMPING),
         ..config.clone()
