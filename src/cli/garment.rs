@@ -514,6 +514,12 @@ fn overstretched(t: &Template, x: &[glam::Vec3], limit: f32, keep: &dyn Fn(u32) 
     over as f32 / edges.len().max(1) as f32
 }
 
+/// Mean of the numeric `key` over the rows that have it (None if none has).
+fn mean_of(rows: &[serde_json::Value], key: &str) -> Option<f64> {
+    let v: Vec<f64> = rows.iter().filter_map(|r| r[key].as_f64()).collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
 #[allow(clippy::too_many_arguments)]
 fn check(
     ctx: &Context,
@@ -678,6 +684,9 @@ fn check(
                 "edges_doubled": r.strain.doubled,
                 "top_drop_cm": r.top_drop.map(|x| x * 100.0),
                 "warp_edges_over_30pct": warp_over,
+                "polish_strain_p95_before": r.polish.map(|p| p.strain_p95_before),
+                "polish_mean_move_mm": r.polish.map(|p| p.mean_move * 1e3),
+                "polish_max_move_mm": r.polish.map(|p| p.max_move * 1e3),
             }))
         })
         .collect();
@@ -786,6 +795,10 @@ fn check(
         "edges_through_body_deepest_mm": f("edges_through_body_deepest_mm").into_iter().fold(0.0, f64::max),
         "share_with_edges_doubled": share_nonzero("edges_doubled"),
         "edges_doubled": f("edges_doubled").iter().sum::<f64>(),
+        "polished": rows.iter().filter(|r| r["polish_mean_move_mm"].is_number()).count(),
+        "polish_strain_p95_before_mean": mean_of(&rows, "polish_strain_p95_before"),
+        "polish_mean_move_mm": mean_of(&rows, "polish_mean_move_mm"),
+        "polish_max_move_mm": f("polish_max_move_mm").into_iter().fold(0.0, f64::max),
         "wall_seconds": t0.elapsed().as_secs_f64(),
     });
     println!(
@@ -806,6 +819,18 @@ fn check(
         summary["warp_edges_over_30pct_max"].as_f64().unwrap_or(0.0) * 100.0,
         summary["wall_seconds"].as_f64().unwrap_or(0.0),
     );
+    if let (Some(before), Some(moved)) = (
+        summary["polish_strain_p95_before_mean"].as_f64(),
+        summary["polish_mean_move_mm"].as_f64(),
+    ) {
+        println!(
+            "strain polish ({} drapes): p95 mean {:.2}% before it; particles moved {:.2} mm on average, {:.2} mm at most",
+            summary["polished"],
+            before * 100.0,
+            moved,
+            summary["polish_max_move_mm"].as_f64().unwrap_or(0.0),
+        );
+    }
     if !warp_only {
         println!(
             "edges through the body (both ends outside, 1 mm deep or more): {:.0} in {:.0}% of drapes; edges at double their rest length or more: {:.0} in {:.0}% of drapes",
