@@ -28,12 +28,17 @@ done
 
 # Strain maps of the 10k T-shirt in random:9 (docs/sim.md): one stretch sweep per substep
 # and five, both settling at the morph's 10 substeps with the elastic push-out, as before
-# session 16; then the default (five sweeps, settling at 20 substeps, inelastic push-out).
+# session 16; then five sweeps settling at 20 substeps with the inelastic push-out (the
+# default before the strain polish of session 24).
 printf 'stretch_iterations = 1\nsettle_substeps = 10\nelastic_pushout = true\n' > "$tmp/one-sweep.toml"
 printf 'settle_substeps = 10\nelastic_pushout = true\n' > "$tmp/settle-10.toml"
 $drape sim --garment tshirt --pose random:9 --config "$tmp/one-sweep.toml" -o "$tmp/d.obj" --strain-png docs/sim/strain-tshirt-random-9.png
 $drape sim --garment tshirt --pose random:9 --config "$tmp/settle-10.toml" -o "$tmp/d.obj" --strain-png docs/sim/strain-tshirt-random-9-five-sweeps.png
-$drape sim --garment tshirt --pose random:9 -o "$tmp/d.obj" --strain-png docs/sim/strain-tshirt-random-9-settle-20.png
+printf 'polish_sweeps = 0\n' > "$tmp/no-polish.toml"
+$drape sim --garment tshirt --pose random:9 --config "$tmp/no-polish.toml" -o "$tmp/d.obj" --strain-png docs/sim/strain-tshirt-random-9-settle-20.png
+# The strain polish (session 24): the 10k sweater in random:10 without it and with it (the default).
+$drape sim --garment sweater --pose random:10 --config "$tmp/no-polish.toml" -o "$tmp/d.obj" --strain-png docs/sim/strain-sweater-random-10-no-polish.png
+$drape sim --garment sweater --pose random:10 -o "$tmp/d.obj" --strain-png docs/sim/strain-sweater-random-10-polish.png
 
 # Garments: each template on the canonical body, then its DQS warp and its drape on three
 # sampled bodies and poses (samples 0 to 2 of `drape garment check`).
