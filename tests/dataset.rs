@@ -81,6 +81,10 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
                 / s.row.warped.len() as f32;
             assert!(d > 1e-3 && d < 0.1, "mean |G - M| = {d} m");
             assert!(s.record.report["strain"]["p95"].as_f64().unwrap() >= 0.0);
+            // Made with the default strain polish: the report says what it did.
+            let p = &s.record.report["polish"];
+            assert!((1..=100).contains(&p["sweeps"].as_u64().unwrap()), "{p}");
+            assert!(p["mean_move"].as_f64().unwrap() < 2e-3, "{p}");
         }
     }
     // No test body appears in training.
@@ -102,6 +106,8 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     assert!(ok, "{text}");
     assert!(text.contains("test pose to nearest train"), "{text}");
     assert!(text.contains("friction garment-body: 0.3"), "{text}");
+    assert!(text.contains("strain polish ("), "{text}");
+    assert!(text.contains("p95 strain before it"), "{text}");
     // The DQS baseline of the test split: the mean of its samples' warp-to-drape Edist.
     let edists: Vec<f64> = ds
         .samples(Split::Test)

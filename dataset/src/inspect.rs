@@ -71,6 +71,10 @@ pub struct Info {
     /// drapes that record it (`None` if none does: made before the slide check), and how
     /// many record it (a dataset resumed across the change has both kinds).
     pub top_drop: Option<(Stats, usize)>,
+    /// The strain polish, over the converged drapes that record it (`None` if none does:
+    /// made before the polish, or with `polish_sweeps = 0`): p95 edge strain before it, and
+    /// the mean and largest distance it moved a particle (m).
+    pub polish: Option<PolishInfo>,
     /// Time per sample, one thread (s).
     pub seconds: Stats,
     /// Each converged test pose's distance to the nearest converged training pose: mean
@@ -156,6 +160,22 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
             let n = v.len();
             (n > 0).then(|| (Stats::of(v), n))
         },
+        polish: {
+            let polished: Vec<&serde_json::Value> = ok
+                .iter()
+                .map(|s| &s.report["polish"])
+                .filter(|p| p.is_object())
+                .collect();
+            let field = |k: &str| -> Stats {
+                Stats::of(polished.iter().filter_map(|p| p[k].as_f64()).collect())
+            };
+            (!polished.is_empty()).then(|| PolishInfo {
+                drapes: polished.len(),
+                strain_p95_before: field("strain_p95_before"),
+                mean_move: field("mean_move"),
+                max_move: field("max_move"),
+            })
+        },
         seconds: Stats::of(ok.iter().map(|s| s.seconds).collect()),
         test_to_train_pose_deg: Stats::of(nearest),
         dqs_edist_cm: [(Split::Train, train_dqs), (Split::Test, test_dqs)]
@@ -164,6 +184,19 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
             .map(|(s, v)| (s, Stats::of(v)))
             .collect(),
     })
+}
+
+/// The strain polish's figures over a dataset's converged drapes.
+#[derive(Debug, Clone, Serialize)]
+pub struct PolishInfo {
+    /// Drapes that record it.
+    pub drapes: usize,
+    /// p95 edge strain before the polish.
+    pub strain_p95_before: Stats,
+    /// Mean distance the polish moved a particle, per drape (m).
+    pub mean_move: Stats,
+    /// Largest distance the polish moved a particle, per drape (m).
+    pub max_move: Stats,
 }
 
 /// Checks every shard: size and sha256 against the manifest, tensor shapes, finite values,

@@ -573,6 +573,17 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
             };
             st("strain p95 per drape", &i.strain_p95, 100.0, "%");
             st("strain max per drape", &i.strain_max, 100.0, "%");
+            match &i.polish {
+                Some(p) => {
+                    println!("  strain polish ({} drapes):", p.drapes);
+                    st("  p95 strain before it", &p.strain_p95_before, 100.0, "%");
+                    st("  mean particle move", &p.mean_move, 1000.0, " mm");
+                    st("  largest particle move", &p.max_move, 1000.0, " mm");
+                }
+                None => println!(
+                    "  strain polish: none recorded (polish_sweeps = 0, or made before it)"
+                ),
+            }
             st(
                 "deepest penetration",
                 &i.penetration_max_depth,
