@@ -473,7 +473,6 @@ fn the_cloths_own_friction_wins_over_the_configs() {
 #[test]
 fn ten_and_twenty_substeps_agree_on_the_hanging_cloth() {
     // The same scene with 10 and 20 substeps per frame comes to rest in the same place.
-    // (The sphere scene does not yet: see the solver's documentation for the figures.)
     // The body stands still, so the drape runs at `settle_substeps`: both are set.
     let run = |substeps: u32| {
         hanging(&SimConfig {
@@ -517,6 +516,49 @@ fn shear_and_bending_at_half_the_rate_cut_the_sag_of_a_long_hanging_cloth() {
         d < 0.002,
         "20 and 20/10 substeps differ by {d} m on average"
     );
+}
+
+#[test]
+fn ten_and_twenty_substeps_agree_on_a_cloth_dropped_on_a_sphere() {
+    // A 0.3 m cloth dropped from 10 cm onto the cap of the 0.3 m sphere: it wraps the cap,
+    // its corners 7 cm below the pole, and comes to rest in the same place at 10 and at 20
+    // substeps a frame (measured: 1.36 mm apart on average). The 1 m drop of the tests
+    // above cannot carry this comparison: its rest state is chaotic in the impact. Dropped
+    // 10 µm higher at the same 20 substeps it comes to rest 40 mm away on average, farther
+    // than 10 substeps take it (32 mm; docs/sim.md, "Open problems"). This one moves by
+    // 0.4 mm when dropped 10 µm higher and by 1.7 mm when dropped 0.5 mm higher, about the
+    // difference in the fall's position that the two substeps' integration makes.
+    let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 64, 32);
+    let cloth = primitives::grid(
+        Vec3::new(-0.15, 0.4, -0.15),
+        Vec3::X * 0.3,
+        Vec3::Z * 0.3,
+        40,
+        40,
+    );
+    let body = StaticBody {
+        vertices: sphere.vertices.clone(),
+        triangles: sphere.triangles.clone(),
+    };
+    let run = |substeps: u32| {
+        let config = SimConfig {
+            substeps,
+            settle_substeps: substeps,
+            ..Default::default()
+        };
+        let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+        let d = drape::drape(&model, &cloth.vertices, &body, &config, true, &mut |_| {});
+        assert!(d.report.converged, "{:?}", d.report.failure);
+        assert_eq!(d.report.penetration.count, 0);
+        d.positions
+    };
+    let (a, b) = (run(10), run(20));
+    // Wrapped around the cap, not lying flat.
+    let low = b.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    assert!(low < 0.26, "lowest particle at {low} m");
+    let d = mean_distance(&a, &b);
+    eprintln!("10 and 20 substeps: {:.2} mm apart on average", d * 1e3);
+    assert!(d < 0.002, "10 and 20 substeps differ by {d} m on average");
 }
 
 #[test]
