@@ -187,7 +187,19 @@ fn vertex_strain_is_the_largest_strain_of_a_vertex_s_edges() {
 /// A 1 x 1 m cloth dropped from 10 cm onto `collider`; returns the model, positions and the
 /// signed distances before the final push-out.
 fn drop_on(collider: &TriMesh, config: &SimConfig, top: f32) -> (ClothModel, drape::DrapeResult) {
-    let cloth = primitives::grid(Vec3::new(-0.5, top + 0.1, -0.5), Vec3::X, Vec3::Z, 40, 40);
+    drop_square_on(collider, config, top, 1.0)
+}
+
+/// A square cloth of `side` metres (40 x 40 cells), centred over the origin, dropped from
+/// 10 cm above `top` onto `collider`.
+fn drop_square_on(
+    collider: &TriMesh,
+    config: &SimConfig,
+    top: f32,
+    side: f32,
+) -> (ClothModel, drape::DrapeResult) {
+    let corner = Vec3::new(-side / 2.0, top + 0.1, -side / 2.0);
+    let cloth = primitives::grid(corner, Vec3::X * side, Vec3::Z * side, 40, 40);
     let model = ClothModel::new(&cloth, config, &[]).unwrap();
     let body = StaticBody {
         vertices: collider.vertices.clone(),
@@ -529,25 +541,13 @@ fn ten_and_twenty_substeps_agree_on_a_cloth_dropped_on_a_sphere() {
     // 0.4 mm when dropped 10 µm higher and by 1.7 mm when dropped 0.5 mm higher, about the
     // difference in the fall's position that the two substeps' integration makes.
     let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 64, 32);
-    let cloth = primitives::grid(
-        Vec3::new(-0.15, 0.4, -0.15),
-        Vec3::X * 0.3,
-        Vec3::Z * 0.3,
-        40,
-        40,
-    );
-    let body = StaticBody {
-        vertices: sphere.vertices.clone(),
-        triangles: sphere.triangles.clone(),
-    };
     let run = |substeps: u32| {
         let config = SimConfig {
             substeps,
             settle_substeps: substeps,
             ..Default::default()
         };
-        let model = ClothModel::new(&cloth, &config, &[]).unwrap();
-        let d = drape::drape(&model, &cloth.vertices, &body, &config, true, &mut |_| {});
+        let (_, d) = drop_square_on(&sphere, &config, 0.3, 0.3);
         assert!(d.report.converged, "{:?}", d.report.failure);
         assert_eq!(d.report.penetration.count, 0);
         d.positions
