@@ -209,7 +209,8 @@ impl Manifest {
     /// written before session 16 settled at its `substeps` with the elastic push-out:
     /// without `settle_substeps` it reads as those, and `elastic_pushout` as true, so its
     /// redrapes settle as it did. One written before the strain polish (session 24) has no
-    /// `polish_sweeps`: it reads as 0, no polish.
+    /// `polish_sweeps`: it reads as 0, no polish; one written before the edge contacts on
+    /// thin parts (session 25) has no `thin_part_thickness`: 0, none.
     pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
         let mut config = self.config.clone();
         if let Some(sim) = config.get_mut("sim").and_then(|s| s.as_object_mut()) {
@@ -218,6 +219,9 @@ impl Manifest {
             // Made before the strain polish (session 24).
             sim.entry("polish_sweeps")
                 .or_insert(serde_json::Value::from(0));
+            // Made before the edge contacts on thin parts (session 25).
+            sim.entry("thin_part_thickness")
+                .or_insert(serde_json::Value::from(0.0));
             for off in ["max_morph_speed", "max_edge_penetration"] {
                 sim.entry(off).or_insert(serde_json::Value::from(1e9));
             }

@@ -687,6 +687,8 @@ fn check(
                 "polish_strain_p95_before": r.polish.map(|p| p.strain_p95_before),
                 "polish_mean_move_mm": r.polish.map(|p| p.mean_move * 1e3),
                 "polish_max_move_mm": r.polish.map(|p| p.max_move * 1e3),
+                "thin_triangles": r.thin_parts.map(|t| t.triangles),
+                "thin_edge_pushes": r.thin_parts.map(|t| t.edge_pushes),
             }))
         })
         .collect();
@@ -799,6 +801,8 @@ fn check(
         "polish_strain_p95_before_mean": mean_of(&rows, "polish_strain_p95_before"),
         "polish_mean_move_mm": mean_of(&rows, "polish_mean_move_mm"),
         "polish_max_move_mm": f("polish_max_move_mm").into_iter().fold(0.0, f64::max),
+        "thin_triangles_mean": mean_of(&rows, "thin_triangles"),
+        "share_with_thin_edge_pushes": share_nonzero("thin_edge_pushes"),
         "wall_seconds": t0.elapsed().as_secs_f64(),
     });
     println!(
@@ -829,6 +833,16 @@ fn check(
             before * 100.0,
             moved,
             summary["polish_max_move_mm"].as_f64().unwrap_or(0.0),
+        );
+    }
+    if let Some(tris) = summary["thin_triangles_mean"].as_f64() {
+        println!(
+            "edge contacts on thin body parts: {:.0} body triangles on average; edges pushed off them in {:.0}% of drapes",
+            tris,
+            summary["share_with_thin_edge_pushes"]
+                .as_f64()
+                .unwrap_or(0.0)
+                * 100.0,
         );
     }
     if !warp_only {
@@ -872,7 +886,7 @@ fn check(
 }
 
 /// The name of the bone that weighs most on body vertex `v`.
-fn dominant_bone(model: &BodyModel, v: u32) -> String {
+pub(super) fn dominant_bone(model: &BodyModel, v: u32) -> String {
     let (bones, weights) = (model.skin.bones[v as usize], model.skin.weights[v as usize]);
     let i = (0..4)
         .max_by(|&a, &b| weights[a].total_cmp(&weights[b]))

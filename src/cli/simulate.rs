@@ -217,6 +217,37 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
             p.time,
         );
     }
+    if !result.edges_through_body.is_empty() {
+        // Where: the bone that weighs most on the body triangle nearest each edge's
+        // deepest point, deepest first.
+        let mut by_bone = std::collections::BTreeMap::<String, (usize, f32)>::new();
+        for e in &result.edges_through_body {
+            let bone = e.tri.map_or("(deeper than 5 cm)".to_string(), |tri| {
+                super::garment::dominant_bone(&model, model.triangles[tri as usize][0])
+            });
+            let entry = by_bone.entry(bone).or_default();
+            entry.0 += 1;
+            entry.1 = entry.1.max(e.depth);
+        }
+        let mut list: Vec<_> = by_bone.into_iter().collect();
+        list.sort_by(|a, b| b.1.1.total_cmp(&a.1.1));
+        println!(
+            "edges through the body (both ends outside, {:.0} mm deep or more), by the nearest bone: {}",
+            config.max_penetration * 1e3,
+            list.iter()
+                .map(|(bone, (n, d))| format!("{bone} {n} ({:.1} mm)", d * 1e3))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    if let Some(t) = &r.thin_parts {
+        println!(
+            "edge contacts on thin body parts: {} body triangles thinner than {:.0} mm; {} edge midpoints pushed out",
+            t.triangles,
+            config.thin_part_thickness * 1e3,
+            t.edge_pushes,
+        );
+    }
     match &r.failure {
         None => {
             println!("converged -> {}", args.output.display());

@@ -239,6 +239,11 @@ impl BodyCollider {
         self.parallel = parallel;
     }
 
+    /// True if the body moves on rayon's threads ([`BodyCollider::set_parallel`]).
+    pub fn is_parallel(&self) -> bool {
+        self.parallel
+    }
+
     /// Body positions at the end of the frame.
     pub fn positions(&self) -> &[Vec3] {
         &self.end
@@ -488,6 +493,46 @@ impl BodyCollider {
         votes >= 2
     }
 
+    /// Triangles of the body.
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// How thick the body is under each triangle (at the end of the frame): the distance
+    /// from the triangle's centroid along its inward face normal to the next triangle the
+    /// ray crosses, or infinity if none lies within `max` (m). About a finger's width on a
+    /// finger, a torso's depth on the torso.
+    pub fn local_thickness(&self, max: f32) -> Vec<f32> {
+        let mut out = vec![f32::INFINITY; self.triangles.len()];
+        let x = &self.end;
+        fill(self.parallel, &mut out, |f| {
+            let [a, b, c] = self.triangles[f].map(|i| x[i as usize]);
+            let n = (b - a).cross(c - a).normalize_or_zero();
+            if n == Vec3::ZERO {
+                return f32::INFINITY;
+            }
+            let (origin, dir) = ((a + b + c) / 3.0, -n);
+            let ray = obvhs::ray::Ray::new(to_a(origin), to_a(dir), 0.0, max);
+            let mut nearest = f32::INFINITY;
+            self.bvh.ray_traverse_anyhit(ray, |_, k| {
+                let g = self.bvh.primitive_indices[k];
+                if g as usize == f {
+                    return;
+                }
+                let [p, q, r] = self.triangles[g as usize].map(|i| x[i as usize]);
+                if let Some(t) = ray_triangle(origin, dir, p, q, r, 1e-4) {
+                    // Hits in the first tenth of a millimetre are the triangle's own
+                    // neighbours at its corners.
+                    if t > 1e-4 && t <= max {
+                        nearest = nearest.min(t);
+                    }
+                }
+            });
+            nearest
+        });
+        out
+    }
+
     /// Signed distance of `p` to the body within `radius` (positive outside), if any part of
     /// the body is that close.
     pub fn signed_distance(&self, p: Vec3, radius: f32) -> Option<f32> {
@@ -500,25 +545,33 @@ const NARROW_RADIUS: f32 = 0.01;
 
 /// Moeller-Trumbore: does the ray `origin + t dir`, t > 0, cross the triangle?
 fn ray_hits_triangle(origin: Vec3, dir: Vec3, a: Vec3, b: Vec3, c: Vec3) -> bool {
+    ray_triangle(origin, dir, a, b, c, 0.0).is_some()
+}
+
+/// Moeller-Trumbore: the `t > 0` at which the ray `origin + t dir` crosses the triangle,
+/// the triangle widened by `slack` in barycentric terms (a ray through a shared edge
+/// then hits both triangles, where without slack rounding can miss both).
+fn ray_triangle(origin: Vec3, dir: Vec3, a: Vec3, b: Vec3, c: Vec3, slack: f32) -> Option<f32> {
     let e1 = b - a;
     let e2 = c - a;
     let p = dir.cross(e2);
     let det = e1.dot(p);
     if det.abs() < 1e-12 {
-        return false;
+        return None;
     }
     let inv = 1.0 / det;
     let s = origin - a;
     let u = s.dot(p) * inv;
-    if !(0.0..=1.0).contains(&u) {
-        return false;
+    if !(-slack..=1.0 + slack).contains(&u) {
+        return None;
     }
     let q = s.cross(e1);
     let v = dir.dot(q) * inv;
-    if v < 0.0 || u + v > 1.0 {
-        return false;
+    if v < -slack || u + v > 1.0 + slack {
+        return None;
     }
-    e2.dot(q) * inv > 0.0
+    let t = e2.dot(q) * inv;
+    (t > 0.0).then_some(t)
 }
 
 #[cfg(test)]

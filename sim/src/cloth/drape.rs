@@ -24,6 +24,7 @@ use super::collision::{BodyCollider, Hit};
 use super::model::ClothModel;
 use super::polish::{self, PolishStats};
 use super::solver::{Solver, StageTimes};
+use super::thin::ThinParts;
 use super::{SimConfig, SimError};
 use crate::body::{BodyError, BodyModel, Pose, ShapeParams, ShapedBody};
 
@@ -362,6 +363,19 @@ pub struct DrapeReport {
     /// drape failed before it). `strain` is measured after it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub polish: Option<PolishStats>,
+    /// The edge contacts on the body's thin parts (None when off: `thin_part_thickness` =
+    /// 0, or the body has none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub thin_parts: Option<ThinStats>,
+}
+
+/// What the edge contacts on the body's thin parts did in one drape (`thin.rs`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct ThinStats {
+    /// Body triangles under which the body is thinner than `thin_part_thickness`.
+    pub triangles: usize,
+    /// Edge midpoints pushed out of them (one per edge and substep).
+    pub edge_pushes: u64,
 }
 
 impl DrapeReport {
@@ -662,6 +676,10 @@ pub fn drape(
     let t = Instant::now();
     let mut body = BodyCollider::new(&motion.at(0), motion.triangles(), config.margin);
     body.set_parallel(parallel && rayon::current_num_threads() > 1);
+    // The body's thin parts, for the edges' contacts (`thin.rs`), found on the first frame.
+    let mut thin = (config.thin_part_thickness > 0.0)
+        .then(|| ThinParts::new(&body, config.thin_part_thickness))
+        .flatten();
     let mut solver = Solver::new(model, config, start.to_vec());
     solver.parallel = parallel;
     solver.times.body += t.elapsed().as_secs_f64();
@@ -675,38 +693,42 @@ pub fn drape(
     let explosion = 2.0 * config.max_velocity * config.frame_dt();
     let mut frame = 0u32;
     let mut fast = 0u32;
-    let mut step = |solver: &mut Solver<'_>, body: &BodyCollider, morphing: bool| {
-        let stats = solver.frame(body);
-        frame += 1;
-        fast = if stats.max_displacement > explosion {
-            fast + 1
-        } else {
-            0
-        };
-        progress(&Progress {
-            frame,
-            morphing,
-            max_displacement: stats.max_displacement,
-            kinetic_energy: stats.kinetic_energy,
-        });
-        if !stats.finite {
-            Err(Failure::NonFinite { frame })
-        } else if fast >= EXPLOSION_FRAMES || stats.max_displacement > EXPLOSION_JUMP {
-            Err(Failure::Explosion {
+    let mut step =
+        |solver: &mut Solver<'_>, body: &BodyCollider, thin: Option<&ThinParts>, morphing: bool| {
+            let stats = solver.frame_with(body, thin);
+            frame += 1;
+            fast = if stats.max_displacement > explosion {
+                fast + 1
+            } else {
+                0
+            };
+            progress(&Progress {
                 frame,
-                displacement: stats.max_displacement,
-            })
-        } else {
-            Ok(stats)
-        }
-    };
+                morphing,
+                max_displacement: stats.max_displacement,
+                kinetic_energy: stats.kinetic_energy,
+            });
+            if !stats.finite {
+                Err(Failure::NonFinite { frame })
+            } else if fast >= EXPLOSION_FRAMES || stats.max_displacement > EXPLOSION_JUMP {
+                Err(Failure::Explosion {
+                    frame,
+                    displacement: stats.max_displacement,
+                })
+            } else {
+                Ok(stats)
+            }
+        };
     let mut failure = None;
     let mut last = (f32::MAX, 0.0f32);
     for k in 1..=motion.frames() {
         let t = Instant::now();
         body.advance(&motion.at(k));
+        if let Some(thin) = &mut thin {
+            thin.advance(body.positions());
+        }
         solver.times.body += t.elapsed().as_secs_f64();
-        match step(&mut solver, &body, true) {
+        match step(&mut solver, &body, thin.as_ref(), true) {
             Ok(stats) => last = (stats.max_displacement, stats.kinetic_energy),
             Err(f) => {
                 failure = Some(f);
@@ -717,12 +739,15 @@ pub fn drape(
     let mut settle = 0u32;
     if failure.is_none() {
         body.hold();
+        if let Some(thin) = &mut thin {
+            thin.hold();
+        }
         // The body stands still from here on: the rest state's sag falls with the substep.
         solver.set_substeps(config.settle_substeps);
         let mut calm = 0u32;
         while settle < config.max_frames && calm < config.rest_frames {
             settle += 1;
-            match step(&mut solver, &body, false) {
+            match step(&mut solver, &body, thin.as_ref(), false) {
                 Ok(stats) => {
                     last = (stats.max_displacement, stats.kinetic_energy);
                     calm = if stats.max_displacement < config.rest_displacement {
@@ -831,6 +856,10 @@ pub fn drape(
         last_displacement: last.0,
         top_drop: None,
         polish: polished,
+        thin_parts: thin.as_ref().map(|t| ThinStats {
+            triangles: t.len(),
+            edge_pushes: solver.edge_pushes,
+        }),
     };
     DrapeResult {
         positions: x,
@@ -866,6 +895,7 @@ mod tests {
             last_displacement: 0.0,
             top_drop: None,
             polish: None,
+            thin_parts: None,
         }
     }
 

@@ -8,6 +8,7 @@
 //! - [`solver`]: the time step, stage by stage.
 //! - [`drape`]: the drape protocols and the quality report.
 //! - [`polish`]: the strain polish of a drape at rest.
+//! - [`thin`]: the body's thin parts (fingers, toes), for the cloth's edge contacts.
 
 pub mod collision;
 pub mod coloring;
@@ -19,6 +20,7 @@ pub mod polish;
 pub mod scene;
 pub mod self_collision;
 pub mod solver;
+pub mod thin;
 
 use std::path::PathBuf;
 

@@ -35,6 +35,7 @@ use super::collision::BodyCollider;
 use super::constraints::dihedral;
 use super::constraints::distance::{Halves, Kind, Prepared, SplitSweep};
 use super::model::ClothModel;
+use super::thin::ThinParts;
 
 /// A contact's point and pseudo-normal at the start and end of a frame (the point moves
 /// linearly in between: its barycentrics are fixed for the frame).
@@ -135,6 +136,13 @@ pub struct Solver<'m> {
     /// The movable particles with a contact this frame, in index order, and their
     /// contacts: what the collision stage visits every substep.
     active: Vec<(u32, Plane)>,
+    /// Per mesh edge: its midpoint's contact on the body's thin parts this frame and its
+    /// last search (empty until a frame has thin parts).
+    edge_contacts: Vec<ContactState>,
+    /// The edges with such a contact this frame and a movable end, in index order.
+    edge_active: Vec<(u32, Plane)>,
+    /// Edge midpoints pushed out of a thin part so far (one per edge and substep).
+    pub edge_pushes: u64,
     /// Distance constraints solved every substep, prepared for its length, in colour
     /// order: all of them if shear and bending run at the full rate, else the stretch ones.
     sweep: SplitSweep,
@@ -203,6 +211,9 @@ impl<'m> Solver<'m> {
             helper_half_sweeps: 0,
             contacts: vec![ContactState::default(); n],
             active: Vec::new(),
+            edge_contacts: Vec::new(),
+            edge_active: Vec::new(),
+            edge_pushes: 0,
             self_grid: super::self_collision::SelfCollision::new(model, config.self_distance),
         }
     }
@@ -210,6 +221,13 @@ impl<'m> Solver<'m> {
     /// Advances one frame against `body`, whose positions move from its frame start to its
     /// frame end (see [`BodyCollider::advance`] and [`BodyCollider::hold`]).
     pub fn frame(&mut self, body: &BodyCollider) -> FrameStats {
+        self.frame_with(body, None)
+    }
+
+    /// [`Solver::frame`] with edge contacts against the body's thin parts, if given
+    /// ([`ThinParts`], moved with `body`): each mesh edge's midpoint is kept `thickness`
+    /// away from them as each particle is from the whole body.
+    pub fn frame_with(&mut self, body: &BodyCollider, thin: Option<&ThinParts>) -> FrameStats {
         let c = self.config.clone();
         let frame_dt = c.frame_dt();
         self.x_frame.copy_from_slice(&self.x);
@@ -221,34 +239,18 @@ impl<'m> Solver<'m> {
         // is within its reach now was within the radius searched then), a contact while the
         // particle has moved less than half the margin.
         let still = body.travel() == 0.0;
-        let (x, v, thickness, margin) = (&self.x, &self.v, c.thickness, body.margin());
+        let (x, v, thickness) = (&self.x, &self.v, c.thickness);
         let detect = |(i, state): (usize, &mut ContactState)| {
             let travel = v[i].length() * frame_dt;
-            let moved = Vec3::from(x[i]).distance(state.searched.0) + travel;
-            let keep = match state.plane {
-                None => moved + thickness <= state.searched.1 + margin,
-                Some(_) => moved <= 0.5 * margin,
-            };
-            if still && keep {
-                // A kept contact may come from a frame in which the body moved; its plane
-                // must not replay that motion in every frame of a still body (it kicked
-                // resting particles off the body at each frame's start, and they bounced at
-                // half the frame rate: the drapes that never came to rest).
-                if let Some(p) = &mut state.plane {
-                    p.q0 = p.q1;
-                    p.n0 = p.n1;
-                }
-                return;
-            }
-            let radius = thickness + travel;
-            let here = Vec3::from(x[i]);
-            state.plane = body.contact(here, radius).map(|c| Plane {
-                q0: body.point_at(&c, 0.0).into(),
-                q1: body.point_at(&c, 1.0).into(),
-                n0: body.normal_at(&c, 0.0).into(),
-                n1: body.normal_at(&c, 1.0).into(),
-            });
-            state.searched = (here, radius);
+            detect_one(
+                body,
+                None,
+                state,
+                Vec3::from(x[i]),
+                travel,
+                thickness,
+                still,
+            );
         };
         if self.parallel {
             self.contacts.par_iter_mut().enumerate().for_each(detect);
@@ -263,6 +265,34 @@ impl<'m> Solver<'m> {
                 .enumerate()
                 .filter_map(|(i, st)| st.plane.filter(|_| w[i] != 0.0).map(|p| (i as u32, p))),
         );
+        // The edges' midpoints against the thin parts.
+        self.edge_active.clear();
+        if let Some(thin) = thin {
+            let edges = &self.model.edges;
+            self.edge_contacts
+                .resize(edges.len(), ContactState::default());
+            let detect = |(e, state): (usize, &mut ContactState)| {
+                let [a, b] = edges[e].map(|i| i as usize);
+                let travel = v[a].length().max(v[b].length()) * frame_dt;
+                let here = Vec3::from(0.5 * (x[a] + x[b]));
+                detect_one(body, Some(thin), state, here, travel, thickness, still);
+            };
+            if self.parallel {
+                self.edge_contacts
+                    .par_iter_mut()
+                    .enumerate()
+                    .for_each(detect);
+            } else {
+                self.edge_contacts.iter_mut().enumerate().for_each(detect);
+            }
+            self.edge_active
+                .extend(self.edge_contacts.iter().enumerate().filter_map(|(e, st)| {
+                    let [a, b] = edges[e];
+                    st.plane
+                        .filter(|_| w[a as usize] + w[b as usize] != 0.0)
+                        .map(|p| (e as u32, p))
+                }));
+        }
         self.times.detect += t0.elapsed().as_secs_f64();
 
         let interval = c.shear_bend_interval();
@@ -481,7 +511,81 @@ impl<'m> Solver<'m> {
                 };
             }
         }
+        // Edge midpoints out of the thin parts: the midpoint moves by the push, each end in
+        // proportion to its inverse mass (both by the push when they weigh the same), with
+        // the particles' inelastic rule and no friction.
+        let w = &self.model.inv_mass;
+        for (e, p) in &self.edge_active {
+            let [a, b] = self.model.edges[*e as usize].map(|i| i as usize);
+            let q = p.q0.lerp(p.q1, te);
+            let n = p.n0.lerp(p.n1, te).normalize_or_zero();
+            let d = (0.5 * (self.x[a] + self.x[b]) - q).dot(n);
+            if d >= thickness {
+                continue;
+            }
+            let share = 2.0 / (w[a] + w[b]);
+            let (sa, sb) = (w[a] * share, w[b] * share);
+            let push = n * (thickness - d);
+            self.x[a] += push * sa;
+            self.x[b] += push * sb;
+            self.edge_pushes += 1;
+            if !elastic {
+                let qb = p.q0.lerp(p.q1, tb);
+                let db = (0.5 * (self.x_before[a] + self.x_before[b]) - qb).dot(n);
+                if db < thickness {
+                    let back = n * (thickness - db);
+                    self.x_before[a] += back * sa;
+                    self.x_before[b] += back * sb;
+                }
+            }
+        }
     }
+}
+
+/// Contact detection for one point (a particle or an edge's midpoint) that moves by up to
+/// `travel` this frame: the nearest triangle of `body` within `thickness + travel` of it,
+/// or the state's last search kept while the body stands still (`still`) and the point
+/// stays inside that search's slack (all that is within its reach now was within the
+/// radius searched then) or, for a contact, has moved less than half the margin. With
+/// `thin`, only a nearest triangle that is thin counts (an edge's midpoint), and only points
+/// near a group of thin parts search at all.
+fn detect_one(
+    body: &BodyCollider,
+    thin: Option<&ThinParts>,
+    state: &mut ContactState,
+    here: Vec3,
+    travel: f32,
+    thickness: f32,
+    still: bool,
+) {
+    let margin = body.margin();
+    let moved = here.distance(state.searched.0) + travel;
+    let keep = match state.plane {
+        None => moved + thickness <= state.searched.1 + margin,
+        Some(_) => moved <= 0.5 * margin,
+    };
+    if still && keep {
+        // A kept contact may come from a frame in which the body moved; its plane must
+        // not replay that motion in every frame of a still body (it kicked resting
+        // particles off the body at each frame's start, and they bounced at half the
+        // frame rate: the drapes that never came to rest).
+        if let Some(p) = &mut state.plane {
+            p.q0 = p.q1;
+            p.n0 = p.n1;
+        }
+        return;
+    }
+    let radius = thickness + travel;
+    let near = thin.is_none_or(|t| t.near(here, radius + margin));
+    let contact = near.then(|| body.contact(here, radius)).flatten();
+    let contact = contact.filter(|c| thin.is_none_or(|t| t.is_thin(c.tri)));
+    state.plane = contact.map(|c| Plane {
+        q0: body.point_at(&c, 0.0).into(),
+        q1: body.point_at(&c, 1.0).into(),
+        n0: body.normal_at(&c, 0.0).into(),
+        n1: body.normal_at(&c, 1.0).into(),
+    });
+    state.searched = (here, radius);
 }
 
 /// Which of a frame's sweeps a job is: shear and bending (when they run apart), the sweep of

@@ -369,6 +369,8 @@ pub fn settle(
         stretch_iterations: 1,
         // Templates are relaxed as before the strain polish (session 24).
         polish_sweeps: 0,
+        // And without edge contacts on thin parts (session 25).
+        thin_part_thickness: 0.0,
         max_frames: config.max_frames.max(RELAX_MAX_FRAMES),
         damping: config.damping.max(RELAX_DAMPING),
         ..config.clone()
