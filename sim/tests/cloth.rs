@@ -859,3 +859,78 @@ fn a_cloth_caught_across_a_limb_fails_the_drape_and_a_chord_over_it_does_not() {
         }
     }
 }
+
+/// A coarse cloth (3 cm edges) dropped across a rod as thin as a finger (1.2 cm), the rod
+/// between two rows of particles: no particle meets it, only the edges that cross it.
+fn drop_coarse_cloth_on_a_thin_rod(thin_part_thickness: f32) -> drape::DrapeResult {
+    let config = SimConfig {
+        thin_part_thickness,
+        ..Default::default()
+    };
+    // Along X through the origin: a cylinder along Y turned onto X.
+    let rod = primitives::cylinder(Vec3::ZERO, 0.006, 0.4, 16, 8);
+    let turn = Quat::from_rotation_z(-std::f32::consts::FRAC_PI_2);
+    let body = StaticBody {
+        vertices: rod
+            .vertices
+            .iter()
+            .map(|p| turn * *p - Vec3::X * 0.2)
+            .collect(),
+        triangles: rod.triangles.clone(),
+    };
+    // Rows of particles at z = ±1.5 cm on either side of the rod, 5 cm above it.
+    let corner = Vec3::new(-0.15, 0.05, -0.135);
+    let cloth = primitives::grid(corner, Vec3::X * 0.27, Vec3::Z * 0.27, 9, 9);
+    let model = ClothModel::new(&cloth, &config, &[]).unwrap();
+    drape::drape(&model, &cloth.vertices, &body, &config, true, &mut |_| {})
+}
+
+#[test]
+fn a_coarse_cloth_hangs_on_a_finger_thin_rod_only_with_edge_contacts() {
+    // Particle contacts alone: the rod slips between the rows and the cloth falls on.
+    let d = drop_coarse_cloth_on_a_thin_rod(0.0);
+    assert!(!d.report.converged);
+    let lowest = d.positions.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    assert!(lowest < -1.0, "fell to {lowest}");
+    assert!(d.report.thin_parts.is_none());
+
+    // With the edge contacts the rod is a thin part and the cloth hangs over it at rest.
+    let d = drop_coarse_cloth_on_a_thin_rod(0.03);
+    let r = &d.report;
+    assert!(r.converged, "{:?}", r.failure);
+    let thin = r.thin_parts.expect("the rod is thin");
+    // The rod's side walls (16 x 8 quads), not its caps.
+    assert_eq!(thin.triangles, 2 * 16 * 8);
+    assert!(thin.edge_pushes > 0);
+    // It rests on the rod (radius 6 mm, thickness 3 mm): every edge's midpoint at least
+    // that far from its axis (the solver's last substep within a millimetre), the top a
+    // few millimetres higher, the sides hanging down.
+    let config = SimConfig::default();
+    let model = ClothModel::new(
+        &primitives::grid(Vec3::ZERO, Vec3::X * 0.27, Vec3::Z * 0.27, 9, 9),
+        &config,
+        &[],
+    )
+    .unwrap();
+    let nearest = model
+        .edges
+        .iter()
+        .map(|[a, b]| {
+            let m = 0.5 * (d.positions[*a as usize] + d.positions[*b as usize]);
+            if m.x.abs() < 0.2 {
+                m.y.hypot(m.z)
+            } else {
+                f32::MAX
+            }
+        })
+        .fold(f32::MAX, f32::min);
+    assert!(
+        nearest > 0.006 + config.thickness - 0.001,
+        "a midpoint {nearest} m from the axis"
+    );
+    let top = d.positions.iter().map(|p| p.y).fold(f32::MIN, f32::max);
+    assert!(top > 0.008 && top < 0.02, "top at {top}");
+    let lowest = d.positions.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    assert!(lowest < -0.08 && lowest > -0.15, "lowest {lowest}");
+    assert_eq!(r.edges_through_body.count, 0, "{:?}", r.edges_through_body);
+}
