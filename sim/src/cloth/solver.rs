@@ -141,6 +141,9 @@ pub struct Solver<'m> {
     edge_contacts: Vec<ContactState>,
     /// The edges with such a contact this frame and a movable end, in index order.
     edge_active: Vec<(u32, Plane)>,
+    /// The edges near a thin part this frame and the last (buffers, in index order).
+    edge_candidates: Vec<u32>,
+    edge_previous: Vec<u32>,
     /// Edge midpoints pushed out of a thin part so far (one per edge and substep).
     pub edge_pushes: u64,
     /// Distance constraints solved every substep, prepared for its length, in colour
@@ -213,6 +216,8 @@ impl<'m> Solver<'m> {
             active: Vec::new(),
             edge_contacts: Vec::new(),
             edge_active: Vec::new(),
+            edge_candidates: Vec::new(),
+            edge_previous: Vec::new(),
             edge_pushes: 0,
             self_grid: super::self_collision::SelfCollision::new(model, config.self_distance),
         }
@@ -271,27 +276,45 @@ impl<'m> Solver<'m> {
             let edges = &self.model.edges;
             self.edge_contacts
                 .resize(edges.len(), ContactState::default());
-            let detect = |(e, state): (usize, &mut ContactState)| {
-                let [a, b] = edges[e].map(|i| i as usize);
+            // The candidates: edges whose midpoint lies near a group of thin parts, with
+            // the fastest particle's travel as everyone's (one pass over the edges that
+            // touches no contact state; most edges are far from the hands and feet).
+            let travel = v
+                .iter()
+                .map(|p| p.length_squared())
+                .fold(0.0, f32::max)
+                .sqrt()
+                * frame_dt;
+            let reach = thickness + travel + body.margin();
+            let mut candidates = std::mem::take(&mut self.edge_candidates);
+            let previous = std::mem::take(&mut self.edge_previous);
+            candidates.clear();
+            candidates.extend((0..edges.len() as u32).filter(|&e| {
+                let [a, b] = edges[e as usize].map(|i| i as usize);
+                thin.near(Vec3::from(0.5 * (x[a] + x[b])), reach)
+            }));
+            // The last frame's candidates that are not candidates now forget their search.
+            for &e in &previous {
+                if candidates.binary_search(&e).is_err() {
+                    self.edge_contacts[e as usize] = ContactState::default();
+                }
+            }
+            for &e in &candidates {
+                let [a, b] = edges[e as usize].map(|i| i as usize);
                 let travel = v[a].length().max(v[b].length()) * frame_dt;
                 let here = Vec3::from(0.5 * (x[a] + x[b]));
+                let state = &mut self.edge_contacts[e as usize];
                 detect_one(body, Some(thin), state, here, travel, thickness, still);
-            };
-            if self.parallel {
-                self.edge_contacts
-                    .par_iter_mut()
-                    .enumerate()
-                    .for_each(detect);
-            } else {
-                self.edge_contacts.iter_mut().enumerate().for_each(detect);
             }
-            self.edge_active
-                .extend(self.edge_contacts.iter().enumerate().filter_map(|(e, st)| {
-                    let [a, b] = edges[e];
-                    st.plane
-                        .filter(|_| w[a as usize] + w[b as usize] != 0.0)
-                        .map(|p| (e as u32, p))
-                }));
+            self.edge_active.extend(candidates.iter().filter_map(|&e| {
+                let [a, b] = edges[e as usize];
+                self.edge_contacts[e as usize]
+                    .plane
+                    .filter(|_| w[a as usize] + w[b as usize] != 0.0)
+                    .map(|p| (e, p))
+            }));
+            self.edge_previous = candidates;
+            self.edge_candidates = previous;
         }
         self.times.detect += t0.elapsed().as_secs_f64();
 

@@ -34,9 +34,11 @@ pub struct ThinParts {
     count: usize,
     /// The body vertices of each group.
     groups: Vec<Vec<u32>>,
-    /// Each group's box at the start and at the end of the frame (min, max).
-    start: Vec<(Vec3, Vec3)>,
+    /// Each group's box at the end of the frame (min, max).
     end: Vec<(Vec3, Vec3)>,
+    /// Each group's box swept over the frame (start and end), and the box around them all.
+    swept: Vec<(Vec3, Vec3)>,
+    all: (Vec3, Vec3),
 }
 
 /// The box around some vertices.
@@ -102,13 +104,29 @@ impl ThinParts {
             groups[i].extend(moved);
         }
         let end: Vec<(Vec3, Vec3)> = groups.iter().map(|g| bounds(x, g)).collect();
-        Some(Self {
+        let mut me = Self {
             thin,
             count,
             groups,
-            start: end.clone(),
+            swept: end.clone(),
             end,
-        })
+            all: (Vec3::ZERO, Vec3::ZERO),
+        };
+        me.sweep(None);
+        Some(me)
+    }
+
+    /// The swept boxes from the boxes at the frame's start (None: the body stands still)
+    /// and at its end.
+    fn sweep(&mut self, start: Option<&[(Vec3, Vec3)]>) {
+        let start = start.unwrap_or(&self.end);
+        for ((s, a), b) in self.swept.iter_mut().zip(start).zip(&self.end) {
+            *s = (a.0.min(b.0), a.1.max(b.1));
+        }
+        self.all = self.swept.iter().fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), b| (lo.min(b.0), hi.max(b.1)),
+        );
     }
 
     /// Number of thin triangles.
@@ -133,25 +151,25 @@ impl ThinParts {
 
     /// True if `p` lies within `radius` of a group's box swept over the frame: a thin
     /// triangle may be that close.
+    #[inline]
     pub fn near(&self, p: Vec3, radius: f32) -> bool {
-        self.start.iter().zip(&self.end).any(|(a, b)| {
-            let lo = a.0.min(b.0) - radius;
-            let hi = a.1.max(b.1) + radius;
-            p.cmpge(lo).all() && p.cmple(hi).all()
-        })
+        let within =
+            |b: &(Vec3, Vec3)| (p + radius).cmpge(b.0).all() && (p - radius).cmple(b.1).all();
+        within(&self.all) && self.swept.iter().any(within)
     }
 
     /// Starts a frame in which the body moves to `body` (all its vertices).
     pub fn advance(&mut self, body: &[Vec3]) {
-        std::mem::swap(&mut self.start, &mut self.end);
+        let start = self.end.clone();
         for (b, g) in self.end.iter_mut().zip(&self.groups) {
             *b = bounds(body, g);
         }
+        self.sweep(Some(&start));
     }
 
     /// Starts a frame in which the body does not move.
     pub fn hold(&mut self) {
-        self.start.clone_from(&self.end);
+        self.sweep(None);
     }
 }
 
