@@ -862,7 +862,7 @@ fn a_cloth_caught_across_a_limb_fails_the_drape_and_a_chord_over_it_does_not() {
 
 /// A coarse cloth (3 cm edges) dropped across a rod as thin as a finger (1.2 cm), the rod
 /// between two rows of particles: no particle meets it, only the edges that cross it.
-fn drop_coarse_cloth_on_a_thin_rod(thin_part_thickness: f32) -> drape::DrapeResult {
+fn drop_coarse_cloth_on_a_thin_rod(thin_part_thickness: f32, parallel: bool) -> drape::DrapeResult {
     let config = SimConfig {
         thin_part_thickness,
         ..Default::default()
@@ -882,20 +882,27 @@ fn drop_coarse_cloth_on_a_thin_rod(thin_part_thickness: f32) -> drape::DrapeResu
     let corner = Vec3::new(-0.15, 0.05, -0.135);
     let cloth = primitives::grid(corner, Vec3::X * 0.27, Vec3::Z * 0.27, 9, 9);
     let model = ClothModel::new(&cloth, &config, &[]).unwrap();
-    drape::drape(&model, &cloth.vertices, &body, &config, true, &mut |_| {})
+    drape::drape(
+        &model,
+        &cloth.vertices,
+        &body,
+        &config,
+        parallel,
+        &mut |_| {},
+    )
 }
 
 #[test]
 fn a_coarse_cloth_hangs_on_a_finger_thin_rod_only_with_edge_contacts() {
     // Particle contacts alone: the rod slips between the rows and the cloth falls on.
-    let d = drop_coarse_cloth_on_a_thin_rod(0.0);
+    let d = drop_coarse_cloth_on_a_thin_rod(0.0, true);
     assert!(!d.report.converged);
     let lowest = d.positions.iter().map(|p| p.y).fold(f32::MAX, f32::min);
     assert!(lowest < -1.0, "fell to {lowest}");
     assert!(d.report.thin_parts.is_none());
 
     // With the edge contacts the rod is a thin part and the cloth hangs over it at rest.
-    let d = drop_coarse_cloth_on_a_thin_rod(0.03);
+    let d = drop_coarse_cloth_on_a_thin_rod(0.03, true);
     let r = &d.report;
     assert!(r.converged, "{:?}", r.failure);
     let thin = r.thin_parts.expect("the rod is thin");
@@ -933,4 +940,7 @@ fn a_coarse_cloth_hangs_on_a_finger_thin_rod_only_with_edge_contacts() {
     let lowest = d.positions.iter().map(|p| p.y).fold(f32::MAX, f32::min);
     assert!(lowest < -0.08 && lowest > -0.15, "lowest {lowest}");
     assert_eq!(r.edges_through_body.count, 0, "{:?}", r.edges_through_body);
+    // One thread gives the same bits.
+    let one = drop_coarse_cloth_on_a_thin_rod(0.03, false);
+    assert_eq!(one.positions, d.positions);
 }
