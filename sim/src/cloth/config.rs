@@ -74,9 +74,10 @@ pub struct SimConfig {
     #[serde(skip_serializing_if = "is_zero")]
     pub polish_sweeps: u32,
     /// Edge contacts against the body's parts thinner than this (m, default 0.03; 0:
-    /// none): fingers, thumbs, toes, ears. Each mesh edge's midpoint is kept `thickness`
-    /// away from them, so a coarse cloth's edge cannot pass through a finger with both
-    /// ends outside (`thin.rs`, docs/sim.md). Left out of the serialised config at 0, so a
+    /// none; else above `thickness`, at most 0.2): fingers, thumbs, toes, ears. Each mesh
+    /// edge's midpoint is kept `thickness` away from them, so a coarse cloth's edge does not
+    /// pass through a finger with both ends outside while it is shorter than about twice
+    /// the finger's width (`thin.rs`, docs/sim.md). Left out of the serialised config at 0, so a
     /// config pinned to 0 keeps the hash it had before the field; a manifest without it
     /// reads as 0.
     #[serde(skip_serializing_if = "is_zero_f32")]
@@ -327,10 +328,12 @@ impl SimConfig {
                 self.stretch_iterations
             ));
         }
-        if !(0.0..=0.2).contains(&self.thin_part_thickness) {
+        if !(self.thin_part_thickness == 0.0
+            || (self.thin_part_thickness > self.thickness && self.thin_part_thickness <= 0.2))
+        {
             return Err(format!(
-                "thin_part_thickness = {} m must lie in 0 to 0.2 (0: no edge contacts)",
-                self.thin_part_thickness
+                "thin_part_thickness = {} m must be 0 (no edge contacts) or lie above thickness ({} m) and at most 0.2",
+                self.thin_part_thickness, self.thickness
             ));
         }
         if self.polish_sweeps > 100_000 {
@@ -392,5 +395,14 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("friction"), "{e}");
+        // Thin parts: 0, or above the thickness.
+        for bad in ["0.002", "-0.01", "0.5", "nan"] {
+            let e =
+                SimConfig::from_toml(&format!("thin_part_thickness = {bad}"), Path::new("x.toml"))
+                    .unwrap_err()
+                    .to_string();
+            assert!(e.contains("thin_part_thickness"), "{e}");
+        }
+        assert!(SimConfig::from_toml("thin_part_thickness = 0.0", Path::new("x.toml")).is_ok());
     }
 }

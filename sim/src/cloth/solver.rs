@@ -16,6 +16,14 @@
 //! 3. **measure**: largest displacement over the frame and kinetic energy (the rest test
 //!    of the drape protocol uses them).
 //!
+//! With the body's thin parts given ([`Solver::frame_with`], `thin.rs`), detection also
+//! finds, for each mesh edge whose midpoint is near a thin part, the nearest body triangle
+//! to that midpoint, kept if it is thin (its search reused like a particle's while the
+//! body stands still); and each substep, after the particles' collisions, a midpoint closer
+//! than `thickness` to it is pushed out along its normal, each end by its share of the
+//! inverse masses (both by the push when they weigh the same), without friction. On the
+//! frame's thread, in edge order.
+//!
 //! Determinism: the particles are split in two halves (`Halves`); each sweep solves the
 //! constraints inside each half in colour order, the two halves at once when a second
 //! thread is free (`Team`), then the constraints joining them. The halves share no
@@ -600,15 +608,18 @@ fn detect_one(
     }
     let radius = thickness + travel;
     let near = thin.is_none_or(|t| t.near(here, radius + margin));
-    let contact = near.then(|| body.contact(here, radius)).flatten();
-    let contact = contact.filter(|c| thin.is_none_or(|t| t.is_thin(c.tri)));
+    let found = near.then(|| body.contact(here, radius)).flatten();
+    let contact = found.filter(|c| thin.is_none_or(|t| t.is_thin(c.tri)));
     state.plane = contact.map(|c| Plane {
         q0: body.point_at(&c, 0.0).into(),
         q1: body.point_at(&c, 1.0).into(),
         n0: body.normal_at(&c, 0.0).into(),
         n1: body.normal_at(&c, 1.0).into(),
     });
-    state.searched = (here, radius);
+    // A contact turned down because its triangle is not thin says nothing about the thin
+    // triangles a little farther away: that search is not reused.
+    let reusable = found.is_none() || contact.is_some();
+    state.searched = (here, if reusable { radius } else { f32::NAN });
 }
 
 /// Which of a frame's sweeps a job is: shear and bending (when they run apart), the sweep of

@@ -11,8 +11,10 @@
 //! edge whose midpoint comes near one (within the boxes around the groups of them: the
 //! hands, the feet, the head) looks for its nearest body triangle and keeps it as a
 //! contact if that triangle is thin; in each substep a midpoint closer than the thickness
-//! is pushed out along that contact's normal, both ends alike
-//! ([`super::solver::Solver::frame_with`]).
+//! is pushed out along that contact's normal, each end by its share of the inverse masses
+//! ([`super::solver::Solver::frame_with`]). That holds an edge off a part while the edge is
+//! shorter than about twice the part's width. Fingertips and toe tips are not thin: their
+//! inward ray runs along the digit.
 
 use glam::Vec3;
 
