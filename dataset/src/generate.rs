@@ -380,9 +380,16 @@ pub fn generate(
         garment_substeps: None,
         program_sha256: crate::manifest::program_sha256(),
     };
+    // The stored config compared as read back from text: serde_json's parser does not
+    // always give back the exact f64 it printed (an f32 0.03 printed as
+    // 0.029999999329447746 read back one ulp off), so this config goes through the same
+    // printing and parsing.
+    let as_read: serde_json::Value =
+        serde_json::from_str(&serde_json::to_string(&stamp.config).expect("configs serialise"))
+            .expect("printed JSON parses");
     if old
         .as_ref()
-        .is_some_and(|o| o.config_sha256 != stamp.config_sha256 || o.config != stamp.config)
+        .is_some_and(|o| o.config_sha256 != stamp.config_sha256 || o.config != as_read)
     {
         return Err(refuse("config"));
     }
