@@ -659,10 +659,7 @@ fn check(
             // weighs most on the body triangle nearest to each edge's deepest point.
             let mut by_bone = std::collections::BTreeMap::<String, usize>::new();
             for e in &d.edges_through_body {
-                let bone = e.tri.map_or("(deeper than 5 cm)".to_string(), |tri| {
-                    dominant_bone(&model, model.triangles[tri as usize][0])
-                });
-                *by_bone.entry(bone).or_default() += 1;
+                *by_bone.entry(through_bone(&model, e)).or_default() += 1;
             }
             bar.inc(1);
             let r = &d.report;
@@ -885,8 +882,16 @@ fn check(
     Ok(())
 }
 
+/// Where an edge through the body crosses it: the bone that weighs most on the body
+/// triangle nearest its deepest point.
+pub(super) fn through_bone(model: &BodyModel, e: &sim::cloth::drape::EdgeThrough) -> String {
+    e.tri.map_or("(deeper than 5 cm)".to_string(), |tri| {
+        dominant_bone(model, model.triangles[tri as usize][0])
+    })
+}
+
 /// The name of the bone that weighs most on body vertex `v`.
-pub(super) fn dominant_bone(model: &BodyModel, v: u32) -> String {
+fn dominant_bone(model: &BodyModel, v: u32) -> String {
     let (bones, weights) = (model.skin.bones[v as usize], model.skin.weights[v as usize]);
     let i = (0..4)
         .max_by(|&a, &b| weights[a].total_cmp(&weights[b]))

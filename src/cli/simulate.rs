@@ -218,14 +218,12 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
         );
     }
     if !result.edges_through_body.is_empty() {
-        // Where: the bone that weighs most on the body triangle nearest each edge's
-        // deepest point, deepest first.
+        // Where (as `drape garment check` names them), deepest first.
         let mut by_bone = std::collections::BTreeMap::<String, (usize, f32)>::new();
         for e in &result.edges_through_body {
-            let bone = e.tri.map_or("(deeper than 5 cm)".to_string(), |tri| {
-                super::garment::dominant_bone(&model, model.triangles[tri as usize][0])
-            });
-            let entry = by_bone.entry(bone).or_default();
+            let entry = by_bone
+                .entry(super::garment::through_bone(&model, e))
+                .or_default();
             entry.0 += 1;
             entry.1 = entry.1.max(e.depth);
         }

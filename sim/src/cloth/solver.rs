@@ -578,8 +578,8 @@ impl<'m> Solver<'m> {
 /// or the state's last search kept while the body stands still (`still`) and the point
 /// stays inside that search's slack (all that is within its reach now was within the
 /// radius searched then) or, for a contact, has moved less than half the margin. With
-/// `thin`, only a nearest triangle that is thin counts (an edge's midpoint), and only points
-/// near a group of thin parts search at all.
+/// `thin`, only a nearest triangle that is thin counts (an edge's midpoint; the caller
+/// passes only midpoints near a group of thin parts).
 fn detect_one(
     body: &BodyCollider,
     thin: Option<&ThinParts>,
@@ -607,8 +607,7 @@ fn detect_one(
         return;
     }
     let radius = thickness + travel;
-    let near = thin.is_none_or(|t| t.near(here, radius + margin));
-    let found = near.then(|| body.contact(here, radius)).flatten();
+    let found = body.contact(here, radius);
     let contact = found.filter(|c| thin.is_none_or(|t| t.is_thin(c.tri)));
     state.plane = contact.map(|c| Plane {
         q0: body.point_at(&c, 0.0).into(),

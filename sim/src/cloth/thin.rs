@@ -91,21 +91,19 @@ impl ThinParts {
             }
         }
         let mut groups: Vec<Vec<u32>> = by_root.into_values().collect();
-        loop {
-            let boxes: Vec<(Vec3, Vec3)> = groups.iter().map(|g| bounds(x, g)).collect();
-            let near = |a: (Vec3, Vec3), b: (Vec3, Vec3)| {
-                (a.0 - GROUPING).cmple(b.1).all() && (b.0 - GROUPING).cmple(a.1).all()
-            };
-            let pair = (0..groups.len()).find_map(|i| {
-                (i + 1..groups.len())
-                    .find(|&j| near(boxes[i], boxes[j]))
-                    .map(|j| (i, j))
-            });
-            let Some((i, j)) = pair else { break };
-            let moved = groups.swap_remove(j);
+        let mut end: Vec<(Vec3, Vec3)> = groups.iter().map(|g| bounds(x, g)).collect();
+        let near = |a: (Vec3, Vec3), b: (Vec3, Vec3)| {
+            (a.0 - GROUPING).cmple(b.1).all() && (b.0 - GROUPING).cmple(a.1).all()
+        };
+        while let Some((i, j)) = (0..groups.len()).find_map(|i| {
+            (i + 1..groups.len())
+                .find(|&j| near(end[i], end[j]))
+                .map(|j| (i, j))
+        }) {
+            let (moved, b) = (groups.swap_remove(j), end.swap_remove(j));
             groups[i].extend(moved);
+            end[i] = (end[i].0.min(b.0), end[i].1.max(b.1));
         }
-        let end: Vec<(Vec3, Vec3)> = groups.iter().map(|g| bounds(x, g)).collect();
         let mut me = Self {
             thin,
             count,
