@@ -320,9 +320,11 @@ fn settling_at_more_substeps_cuts_the_sag_of_the_rest_state() {
 #[test]
 fn the_strain_polish_takes_the_sag_out_of_the_cloth_hanging_off_a_sphere() {
     // The drop on the sphere with the default polish (100 sweeps) and without: the
-    // hanging corners shorten (measured p95 strain 0.52% without, 0.19% with, at 20
-    // settling substeps), particles move well under a millimetre on average, none ends
-    // inside the sphere, and the part lying on it stays where it came to rest.
+    // hanging corners shorten (measured p95 strain 0.52% without, 0.10% with, at 20
+    // settling substeps; 0.19% when the particles on the sphere were held, before session
+    // 26), particles move well under a millimetre on average, none ends inside the sphere,
+    // and the part lying on it slides a fraction of a millimetre (measured: the pole
+    // 0.33 mm).
     let sphere = primitives::uv_sphere(Vec3::ZERO, 0.3, 64, 32);
     let run = |polish_sweeps: u32| {
         let config = SimConfig {
@@ -352,11 +354,12 @@ fn the_strain_polish_takes_the_sag_out_of_the_cloth_hanging_off_a_sphere() {
     );
     assert!(p.mean_move < 1e-3 && p.max_move < 6e-3, "{p:?}");
     let moved = |i: usize| plain.positions[i].distance(polished.positions[i]);
-    // The particle on the pole is held.
+    // The particle on the pole stays nearly where it was (`run` checked that no particle
+    // is inside the sphere after the polish, before the final push-out).
     let pole = (0..model.len())
         .max_by(|&a, &b| plain.positions[a].y.total_cmp(&plain.positions[b].y))
         .unwrap();
-    assert_eq!(moved(pole), 0.0);
+    assert!(moved(pole) < 1e-3, "the pole moved {}", moved(pole));
     // The lowest particle hangs and rises.
     let low = (0..model.len())
         .min_by(|&a, &b| plain.positions[a].y.total_cmp(&plain.positions[b].y))
