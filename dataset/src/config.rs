@@ -139,6 +139,24 @@ pub struct DatasetConfig {
     /// Left out of the resolved config when false, so older configs keep their hash.
     #[serde(default, skip_serializing_if = "is_false")]
     pub sizes: bool,
+    /// With `sizes`: how much more a size too small for a body counts than one too large
+    /// when its size is picked (default 10, `sim::garment::TIGHT_WEIGHT`; 1 to 100). The
+    /// datasets made before session 26 picked with 4: a manifest with sizes and without the
+    /// field reads as 4, and a config that sets 4 keeps the hash it had. Left out of the
+    /// resolved config without sizes.
+    #[serde(
+        default = "default_size_tight_weight",
+        skip_serializing_if = "is_legacy_tight_weight"
+    )]
+    pub size_tight_weight: f32,
+}
+
+fn default_size_tight_weight() -> f32 {
+    sim::garment::TIGHT_WEIGHT
+}
+
+fn is_legacy_tight_weight(w: &f32) -> bool {
+    *w == sim::garment::LEGACY_TIGHT_WEIGHT
 }
 
 fn is_false(b: &bool) -> bool {
@@ -249,6 +267,12 @@ impl DatasetConfig {
                 graded.join(", ")
             ));
         }
+        if !(1.0..=100.0).contains(&self.size_tight_weight) {
+            return Err(format!(
+                "size_tight_weight = {} must lie in 1 to 100",
+                self.size_tight_weight
+            ));
+        }
         if self.poses_per_body == 0 {
             return Err("poses_per_body must be at least 1".into());
         }
@@ -299,7 +323,13 @@ impl DatasetConfig {
 
     /// The resolved config as canonical JSON (what the manifest stores and hashes).
     pub fn resolved_json(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("configs serialise")
+        let mut v = serde_json::to_value(self).expect("configs serialise");
+        if !self.sizes {
+            if let Some(o) = v.as_object_mut() {
+                o.remove("size_tight_weight");
+            }
+        }
+        v
     }
 
     /// sha256 of the resolved config's JSON: parts of one dataset must agree on it.
@@ -341,6 +371,46 @@ mod tests {
             assert_eq!((p.bodies.train, p.bodies.val, p.bodies.test), (500, 20, 80));
             assert_eq!((p.garment.as_str(), p.resolution), (g, 10000));
             assert_eq!((p.poses_per_body, p.sizes), (poses, true));
+        }
+    }
+
+    #[test]
+    fn the_size_tight_weight_is_hashed_only_with_sizes_and_legacy_manifests_read_4() {
+        let plain = DatasetConfig::load("tiny").unwrap();
+        assert_eq!(plain.size_tight_weight, sim::garment::TIGHT_WEIGHT);
+        // Without sizes the weight is not part of the config: the hash stays.
+        let mut four = plain.clone();
+        four.size_tight_weight = 4.0;
+        assert_eq!(four.hash(), plain.hash());
+        assert!(plain.resolved_json().get("size_tight_weight").is_none());
+        // With sizes the default (10) is recorded; 4, the weight before session 26, is
+        // left out, so configs that pin it keep the hash they had.
+        let mut sized = plain.clone();
+        sized.sizes = true;
+        assert_eq!(sized.resolved_json()["size_tight_weight"], 10.0);
+        let mut legacy = sized.clone();
+        legacy.size_tight_weight = 4.0;
+        assert!(legacy.resolved_json().get("size_tight_weight").is_none());
+        assert_ne!(legacy.hash(), sized.hash());
+        // The reproduction's configs pin 4.
+        for g in ["tshirt", "sweater", "dress", "jeans"] {
+            let c = DatasetConfig::load(&format!("cpu-repro-{g}")).unwrap();
+            assert_eq!((c.sizes, c.size_tight_weight), (true, 4.0));
+        }
+        // A manifest in sizes without the field was made with 4; one with it keeps it.
+        let manifest = |c: &DatasetConfig| {
+            crate::manifest::Manifest::new(c, Default::default(), String::new(), Vec::new())
+        };
+        let m = manifest(&legacy);
+        assert_eq!(m.dataset_config().unwrap().size_tight_weight, 4.0);
+        let m = manifest(&sized);
+        assert_eq!(m.dataset_config().unwrap().size_tight_weight, 10.0);
+        // Out of range: refused by name.
+        for bad in [0.5, 101.0, f32::NAN] {
+            let mut c = sized.clone();
+            c.size_tight_weight = bad;
+            let e = c.validate().unwrap_err();
+            assert!(e.contains("size_tight_weight"), "{e}");
         }
     }
 

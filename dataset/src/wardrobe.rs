@@ -87,7 +87,7 @@ impl Wardrobe {
                     cloth,
                 });
             }
-            Some((chart, v))
+            Some((chart.with_tight_weight(config.size_tight_weight), v))
         } else {
             None
         };

@@ -421,7 +421,11 @@ impl Library {
                 Ok((n, measure(&body, &g.by)?))
             })
             .collect::<Result<Vec<_>, GarmentError>>()?;
-        Ok(Some(SizeChart { by: g.by, sizes }))
+        Ok(Some(SizeChart {
+            by: g.by,
+            sizes,
+            tight_weight: TIGHT_WEIGHT,
+        }))
     }
 
     /// Imports a user's OBJ as garment `name` (see [`import_mesh`]) and stores it.
@@ -467,8 +471,15 @@ impl Library {
 }
 
 /// How much more a size that is too small for a body counts than one too large when a size
-/// is picked: a tight garment strains, a loose one only hangs.
-pub const TIGHT_WEIGHT: f32 = 4.0;
+/// is picked: a tight garment strains, a loose one only hangs. 10 since session 26: at 4
+/// a heavy woman (hips 1.005 m) wore the dress size whose hips measure 0.980 m, chosen
+/// for its height over the next size (hips 1.017 m), and her drape was stretched round
+/// the hips (p95 3.20%; 2.24% in the larger size; docs/garments.md, "Sizes").
+pub const TIGHT_WEIGHT: f32 = 10.0;
+
+/// The weight before session 26, which datasets made before then keep
+/// (`size_tight_weight` in their configs).
+pub const LEGACY_TIGHT_WEIGHT: f32 = 4.0;
 
 /// A graded garment's size chart: the measurements that choose a size and each size's
 /// reference values.
@@ -478,11 +489,20 @@ pub struct SizeChart {
     pub by: Vec<String>,
     /// Size name and its reference body's measurements (m), in the order of `by`.
     pub sizes: Vec<(String, Vec<f32>)>,
+    /// How much more a size too small counts than one too large ([`TIGHT_WEIGHT`] unless
+    /// set).
+    pub tight_weight: f32,
 }
 
 impl SizeChart {
+    /// The chart with another weight for a size too small (a dataset's `size_tight_weight`).
+    pub fn with_tight_weight(mut self, w: f32) -> Self {
+        self.tight_weight = w;
+        self
+    }
+
     /// The size a body wears: the one whose reference measurements are closest in relative
-    /// terms, a size too small counting [`TIGHT_WEIGHT`] times as much as one too large (sum
+    /// terms, a size too small counting `tight_weight` times as much as one too large (sum
     /// of the squared `body / reference - 1`; the first size on ties), with the body's
     /// measurements.
     pub fn pick(&self, body: &ShapedBody<'_>) -> Result<(String, Vec<f32>), GarmentError> {
@@ -492,7 +512,7 @@ impl SizeChart {
                 .zip(r)
                 .map(|(b, r)| {
                     let d = b / r - 1.0;
-                    d * d * if d > 0.0 { TIGHT_WEIGHT } else { 1.0 }
+                    d * d * if d > 0.0 { self.tight_weight } else { 1.0 }
                 })
                 .sum::<f32>()
         };
