@@ -139,24 +139,25 @@ pub struct DatasetConfig {
     /// Left out of the resolved config when false, so older configs keep their hash.
     #[serde(default, skip_serializing_if = "is_false")]
     pub sizes: bool,
-    /// With `sizes`: how much more a size too small for a body counts than one too large
-    /// when its size is picked (default 10, `sim::garment::TIGHT_WEIGHT`; 1 to 100). The
-    /// datasets made before session 26 picked with 4: a manifest with sizes and without the
-    /// field reads as 4, and a config that sets 4 keeps the hash it had. Left out of the
-    /// resolved config without sizes.
+    /// With `sizes`: the rule that picks a body's size (`sim::garment::PickRule`): 2 (the
+    /// default, since session 26) counts a girth too small 10 times one too large and
+    /// height the same either way; 1 (before) counted any measurement too small 4 times.
+    /// A manifest in sizes without the field was made with 1, and a config that sets 1
+    /// keeps the hash it had (1 is left out of the resolved config). Without sizes the
+    /// field is not recorded.
     #[serde(
-        default = "default_size_tight_weight",
-        skip_serializing_if = "is_legacy_tight_weight"
+        default = "default_size_pick",
+        skip_serializing_if = "is_first_size_pick"
     )]
-    pub size_tight_weight: f32,
+    pub size_pick: u32,
 }
 
-fn default_size_tight_weight() -> f32 {
-    sim::garment::TIGHT_WEIGHT
+fn default_size_pick() -> u32 {
+    sim::garment::PickRule::V2.number()
 }
 
-fn is_legacy_tight_weight(w: &f32) -> bool {
-    *w == sim::garment::LEGACY_TIGHT_WEIGHT
+fn is_first_size_pick(n: &u32) -> bool {
+    *n == sim::garment::PickRule::V1.number()
 }
 
 fn is_false(b: &bool) -> bool {
@@ -267,10 +268,10 @@ impl DatasetConfig {
                 graded.join(", ")
             ));
         }
-        if !(1.0..=100.0).contains(&self.size_tight_weight) {
+        if sim::garment::PickRule::from_number(self.size_pick).is_none() {
             return Err(format!(
-                "size_tight_weight = {} must lie in 1 to 100",
-                self.size_tight_weight
+                "size_pick = {} must be 1 (the rule before session 26) or 2",
+                self.size_pick
             ));
         }
         if self.poses_per_body == 0 {
@@ -326,7 +327,7 @@ impl DatasetConfig {
         let mut v = serde_json::to_value(self).expect("configs serialise");
         if !self.sizes {
             if let Some(o) = v.as_object_mut() {
-                o.remove("size_tight_weight");
+                o.remove("size_pick");
             }
         }
         v
@@ -375,42 +376,40 @@ mod tests {
     }
 
     #[test]
-    fn the_size_tight_weight_is_hashed_only_with_sizes_and_legacy_manifests_read_4() {
+    fn the_size_pick_is_hashed_only_with_sizes_and_legacy_manifests_read_1() {
         let plain = DatasetConfig::load("tiny").unwrap();
-        assert_eq!(plain.size_tight_weight, sim::garment::TIGHT_WEIGHT);
-        // Without sizes the weight is not part of the config: the hash stays.
-        let mut four = plain.clone();
-        four.size_tight_weight = 4.0;
-        assert_eq!(four.hash(), plain.hash());
-        assert!(plain.resolved_json().get("size_tight_weight").is_none());
-        // With sizes the default (10) is recorded; 4, the weight before session 26, is
-        // left out, so configs that pin it keep the hash they had.
+        assert_eq!(plain.size_pick, 2);
+        // Without sizes the rule is not part of the config: the hash stays.
+        let mut first = plain.clone();
+        first.size_pick = 1;
+        assert_eq!(first.hash(), plain.hash());
+        assert!(plain.resolved_json().get("size_pick").is_none());
+        // With sizes the default (2) is recorded; 1, the rule before session 26, is left
+        // out, so configs that pin it keep the hash they had.
         let mut sized = plain.clone();
         sized.sizes = true;
-        assert_eq!(sized.resolved_json()["size_tight_weight"], 10.0);
+        assert_eq!(sized.resolved_json()["size_pick"], 2);
         let mut legacy = sized.clone();
-        legacy.size_tight_weight = 4.0;
-        assert!(legacy.resolved_json().get("size_tight_weight").is_none());
+        legacy.size_pick = 1;
+        assert!(legacy.resolved_json().get("size_pick").is_none());
         assert_ne!(legacy.hash(), sized.hash());
-        // The reproduction's configs pin 4.
+        // The reproduction's configs pin 1.
         for g in ["tshirt", "sweater", "dress", "jeans"] {
             let c = DatasetConfig::load(&format!("cpu-repro-{g}")).unwrap();
-            assert_eq!((c.sizes, c.size_tight_weight), (true, 4.0));
+            assert_eq!((c.sizes, c.size_pick), (true, 1));
         }
-        // A manifest in sizes without the field was made with 4; one with it keeps it.
+        // A manifest in sizes without the field was made with 1; one with it keeps it.
         let manifest = |c: &DatasetConfig| {
             crate::manifest::Manifest::new(c, Default::default(), String::new(), Vec::new())
         };
-        let m = manifest(&legacy);
-        assert_eq!(m.dataset_config().unwrap().size_tight_weight, 4.0);
-        let m = manifest(&sized);
-        assert_eq!(m.dataset_config().unwrap().size_tight_weight, 10.0);
-        // Out of range: refused by name.
-        for bad in [0.5, 101.0, f32::NAN] {
+        assert_eq!(manifest(&legacy).dataset_config().unwrap().size_pick, 1);
+        assert_eq!(manifest(&sized).dataset_config().unwrap().size_pick, 2);
+        // No such rule: refused by name.
+        for bad in [0, 3] {
             let mut c = sized.clone();
-            c.size_tight_weight = bad;
+            c.size_pick = bad;
             let e = c.validate().unwrap_err();
-            assert!(e.contains("size_tight_weight"), "{e}");
+            assert!(e.contains("size_pick"), "{e}");
         }
     }
 

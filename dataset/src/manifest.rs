@@ -211,14 +211,13 @@ impl Manifest {
     /// redrapes settle as it did. One written before the strain polish (session 24) has no
     /// `polish_sweeps`: it reads as 0, no polish; one written before the edge contacts on
     /// thin parts (session 25) has no `thin_part_thickness`: 0, none. One in sizes written
-    /// before session 26 picked sizes with a weight of 4 for a size too small: without
-    /// `size_tight_weight` it reads as 4.
+    /// before session 26 picked sizes by the first rule: without `size_pick` it reads as 1.
     pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
         let mut config = self.config.clone();
         if let Some(c) = config.as_object_mut() {
             if c.get("sizes").and_then(|s| s.as_bool()) == Some(true) {
-                c.entry("size_tight_weight")
-                    .or_insert(serde_json::Value::from(sim::garment::LEGACY_TIGHT_WEIGHT));
+                c.entry("size_pick")
+                    .or_insert(serde_json::Value::from(sim::garment::PickRule::V1.number()));
             }
         }
         if let Some(sim) = config.get_mut("sim").and_then(|s| s.as_object_mut()) {

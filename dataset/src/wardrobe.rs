@@ -87,7 +87,10 @@ impl Wardrobe {
                     cloth,
                 });
             }
-            Some((chart.with_tight_weight(config.size_tight_weight), v))
+            let rule = sim::garment::PickRule::from_number(config.size_pick).ok_or_else(|| {
+                DatasetError::Invalid(format!("size_pick = {} is no rule", config.size_pick))
+            })?;
+            Some((chart.with_rule(rule), v))
         } else {
             None
         };

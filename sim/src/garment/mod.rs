@@ -424,7 +424,7 @@ impl Library {
         Ok(Some(SizeChart {
             by: g.by,
             sizes,
-            tight_weight: TIGHT_WEIGHT,
+            rule: PickRule::V2,
         }))
     }
 
@@ -470,16 +470,52 @@ impl Library {
     }
 }
 
-/// How much more a size that is too small for a body counts than one too large when a size
-/// is picked: a tight garment strains, a loose one only hangs. 10 since session 26: at 4
-/// a heavy woman (hips 1.005 m) wore the dress size whose hips measure 0.980 m, chosen
-/// for its height over the next size (hips 1.017 m), and her drape was stretched round
-/// the hips (p95 3.20%; 2.24% in the larger size; docs/garments.md, "Sizes").
-pub const TIGHT_WEIGHT: f32 = 10.0;
+/// How a size is picked from a body's measurements ([`SizeChart::pick`]): the sum over the
+/// measurements of the squared `body / reference - 1`, a measurement where the size is too
+/// small counting more than one where it is too large (a tight garment strains, a loose
+/// one only hangs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PickRule {
+    /// Before session 26: a size too small counts 4 times, height included. The datasets
+    /// made before then (the reproduction's `cpu-repro-*`) keep it.
+    V1,
+    /// Since session 26: a girth too small counts 10 times; height counts the same either
+    /// way (a garment made for a shorter body is shorter, not tight). Under V1 a heavy
+    /// woman (hips 1.005 m) wore the dress size whose hips measure 0.980 m, picked for its
+    /// height over the next size (hips 1.017 m), and her drape was stretched round the hips
+    /// (p95 3.20%; 2.24% in the larger size; docs/garments.md, "Sizes").
+    V2,
+}
 
-/// The weight before session 26, which datasets made before then keep
-/// (`size_tight_weight` in their configs).
-pub const LEGACY_TIGHT_WEIGHT: f32 = 4.0;
+impl PickRule {
+    /// The rule's number in dataset configs (`size_pick`).
+    pub fn number(self) -> u32 {
+        match self {
+            Self::V1 => 1,
+            Self::V2 => 2,
+        }
+    }
+
+    /// The rule of a number (`None` if there is none).
+    pub fn from_number(n: u32) -> Option<Self> {
+        match n {
+            1 => Some(Self::V1),
+            2 => Some(Self::V2),
+            _ => None,
+        }
+    }
+
+    /// How much a relative difference `d = body / reference - 1` of measurement `name`
+    /// counts.
+    fn misfit(self, name: &str, d: f32) -> f32 {
+        let tight = match self {
+            Self::V1 => 4.0,
+            Self::V2 if name == "height" => 1.0,
+            Self::V2 => 10.0,
+        };
+        d * d * if d > 0.0 { tight } else { 1.0 }
+    }
+}
 
 /// A graded garment's size chart: the measurements that choose a size and each size's
 /// reference values.
@@ -489,31 +525,27 @@ pub struct SizeChart {
     pub by: Vec<String>,
     /// Size name and its reference body's measurements (m), in the order of `by`.
     pub sizes: Vec<(String, Vec<f32>)>,
-    /// How much more a size too small counts than one too large ([`TIGHT_WEIGHT`] unless
-    /// set).
-    pub tight_weight: f32,
+    /// How the size is picked ([`PickRule::V2`] unless set).
+    pub rule: PickRule,
 }
 
 impl SizeChart {
-    /// The chart with another weight for a size too small (a dataset's `size_tight_weight`).
-    pub fn with_tight_weight(mut self, w: f32) -> Self {
-        self.tight_weight = w;
+    /// The chart picking by another rule (a dataset's `size_pick`).
+    pub fn with_rule(mut self, rule: PickRule) -> Self {
+        self.rule = rule;
         self
     }
 
     /// The size a body wears: the one whose reference measurements are closest in relative
-    /// terms, a size too small counting `tight_weight` times as much as one too large (sum
-    /// of the squared `body / reference - 1`; the first size on ties), with the body's
+    /// terms by the chart's [`PickRule`] (the first size on ties), with the body's
     /// measurements.
     pub fn pick(&self, body: &ShapedBody<'_>) -> Result<(String, Vec<f32>), GarmentError> {
         let m = measure(body, &self.by)?;
         let misfit = |r: &[f32]| -> f32 {
             m.iter()
                 .zip(r)
-                .map(|(b, r)| {
-                    let d = b / r - 1.0;
-                    d * d * if d > 0.0 { self.tight_weight } else { 1.0 }
-                })
+                .zip(&self.by)
+                .map(|((b, r), name)| self.rule.misfit(name, b / r - 1.0))
                 .sum::<f32>()
         };
         let best = self
