@@ -140,8 +140,8 @@ pub struct DatasetConfig {
     #[serde(default, skip_serializing_if = "is_false")]
     pub sizes: bool,
     /// With `sizes`: the rule that picks a body's size (`sim::garment::PickRule`): 2 (the
-    /// default, since session 26) counts a girth too small 10 times one too large and
-    /// height the same either way; 1 (before) counted any measurement too small 4 times.
+    /// default, since session 26) counts a girth too small 10 times one too large and a
+    /// height too small 4 times; 1 (before) counted any measurement too small 4 times.
     /// A manifest in sizes without the field was made with 1, and a config that sets 1
     /// keeps the hash it had (1 is left out of the resolved config). Without sizes the
     /// field is not recorded.
