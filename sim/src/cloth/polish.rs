@@ -100,14 +100,13 @@ pub fn polish(
     } else {
         x.iter().map(hit).collect()
     };
-    let clearance: Vec<Option<f32>> = contact.iter().map(|c| c.map(|(d, _)| d)).collect();
     // Inverse masses of the sweeps: particles at the body (and pinned ones) are 0 there.
     let w: Vec<f32> = model
         .inv_mass
         .iter()
-        .zip(&clearance)
+        .zip(&contact)
         .map(|(&w, c)| match c {
-            Some(d) if *d < reach => 0.0,
+            Some((d, _)) if *d < reach => 0.0,
             _ => w,
         })
         .collect();
@@ -187,9 +186,10 @@ pub fn polish(
     let slid = sliders.iter().filter(|s| x[s.i] != x0[s.i]).count();
     // Back out of the thickness where a particle moved towards the body.
     let mut pushed_out = 0;
-    for ((p, p0), c) in x.iter_mut().zip(&x0).zip(&clearance) {
+    for ((p, p0), c) in x.iter_mut().zip(&x0).zip(&contact) {
         let moved = p.distance(*p0);
-        if moved == 0.0 || moved < c.unwrap_or(CLEARANCE_RADIUS) - thickness {
+        let clearance = c.map_or(CLEARANCE_RADIUS, |(d, _)| d);
+        if moved == 0.0 || moved < clearance - thickness {
             continue;
         }
         if let Some(h) = body.closest(*p, CLEARANCE_RADIUS) {
@@ -229,10 +229,10 @@ impl Slider {
     /// edge's projection (shared by the two ends' inverse masses), each weighted by its
     /// stiffness, the inverse of its rest length (an edge's force goes with its strain: a
     /// short edge stretched by a millimetre pulls harder than a long one), then Coulomb
-    /// friction on that net pull. The part of the pull into the body is what the body takes (the
-    /// normal force); the particle stays put while the tangential part is at most
-    /// `mu` times it (static friction), and otherwise slides by the excess (kinetic). A
-    /// pull away from the body lifts the particle off it.
+    /// friction on that net pull. The part of the pull into the body is what the body
+    /// takes (the normal force); the particle stays put while the tangential part is at
+    /// most `mu` times it (static friction), and otherwise slides by the excess (kinetic).
+    /// A pull away from the body lifts the particle off it.
     fn pull(&self, x: &[Vec3], inv_mass: &[f32], mu: f32) -> Vec3 {
         let wi = inv_mass[self.i];
         let mut sum = Vec3::ZERO;
