@@ -1,10 +1,12 @@
-//! Every GarNet variant fits a handful of samples: `drape train` on the two lowest-id
-//! training samples of the `handful` dataset (a 1k-vertex T-shirt) with a cosine-decayed
-//! learning rate, and the training Edist must fall well below the DQS warp's.
+//! Every GarNet variant overfits a handful of samples: `drape train` on the two lowest-id
+//! training samples of the `handful` dataset (a 1k-vertex T-shirt, DQS 6.4 cm), L_vert only,
+//! 2,000 Adam steps with a cosine-decayed learning rate, and the training Edist must end
+//! below the 3 mm.
 //!
-//! The bar is 3 mm; in this test's budget (300 Adam steps per variant) the
-//! networks reach 1.2 to 2.5 cm from 6.4 cm (docs/learn.md gives the measured curves and
-//! what it takes to reach 3 mm), so this test asserts the measured level with a margin.
+//! The network is the tiny config's with a wider garment MLP and fusion, a positional
+//! encoding of the garment coordinates (`fourier_bands = 8`) and residual blocks that start
+//! at zero (`zero_init_residuals`): without the last two, 2,000 steps end at 5.3 to 5.5 mm
+//! (docs/learn.md, "Overfitting").
 
 mod common;
 
@@ -46,9 +48,13 @@ fn every_variant_fits_a_handful_of_samples() {
         let text = base
             .replace(
                 "epochs = 150",
-                "epochs = 300\nmax_train_samples = 2\nlearning_rate_end = 1e-5",
+                "epochs = 2000\nmax_train_samples = 2\nlearning_rate_end = 1e-5\nadam_epsilon = 1e-8",
             )
-            .replace("variant = \"local\"", &format!("variant = \"{variant}\""));
+            .replace("variant = \"local\"", &format!("variant = \"{variant}\""))
+            .replace("garment_mlp = [32, 32]", "garment_mlp = [128, 128]")
+            .replace("fusion = [64, 32, 32]", "fusion = [256, 128, 64]")
+            + "\nfourier_bands = 8\nzero_init_residuals = true\n\n[loss]\npen = 0.0\nnorm = 0.0\nbend = 0.0\n";
+        assert!(text.contains("epochs = 2000") && text.contains("[128, 128]"));
         let cfg = tmp.path().join(format!("{variant}.toml"));
         std::fs::write(&cfg, text).unwrap();
         let run_dir = tmp.path().join(variant);
@@ -70,8 +76,8 @@ fn every_variant_fits_a_handful_of_samples() {
             .expect("a train row");
         eprintln!("{variant}: training Edist {last:.3} cm (DQS {dqs:.3} cm)");
         assert!(
-            last < 0.5 * dqs,
-            "{variant}: training Edist {last:.3} cm, not below half the DQS warp's {dqs:.3} cm"
+            last < 0.3,
+            "{variant}: training Edist {last:.3} cm, not below 3 mm (DQS {dqs:.3} cm)"
         );
     }
 }

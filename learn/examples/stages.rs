@@ -43,7 +43,7 @@ fn main() {
         topo.slots,
         c.conv_heads
     );
-    let conv = FeaStConv::new(w + 3, w, c.conv_heads, &device);
+    let conv = FeaStConv::new(w + 3, w, c.conv_heads, false, &device);
     let x = Tensor::<3>::random([b, n, w + 3], Distribution::Default, &device).require_grad();
     let rows = g.rows(b, &device);
     time("FeaStConv forward", 3, || {

@@ -120,6 +120,27 @@ pub struct ModelConfig {
     /// about +-10 units). The paper feeds metres; in metres this network fits about a third
     /// more slowly (docs/learn.md).
     pub length_scale: f64,
+    /// Frequency bands of a positional encoding of the garment coordinates (default 0: the
+    /// paper's plain xyz). With `n` bands the garment point-wise MLP also takes sin and cos
+    /// of `2^k` times the coordinates (in `length_scale` units) for k = 0 to n - 1: an MLP
+    /// of plain coordinates learns detail of a few centimetres slowly (docs/learn.md).
+    /// Left out of the saved config when 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub fourier_bands: usize,
+    /// Start every residual FeaStNet block at zero (its output layer's weights zero, as
+    /// Fixup and SkipInit do), so the stack starts as the identity and the blocks grow in
+    /// as they learn (default false: He initialisation). Left out of the saved config when
+    /// false.
+    #[serde(skip_serializing_if = "is_false")]
+    pub zero_init_residuals: bool,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 impl Default for ModelConfig {
@@ -141,6 +162,8 @@ impl Default for ModelConfig {
             local_k: 15,
             leaky_slope: 0.1,
             length_scale: 0.1,
+            fourier_bands: 0,
+            zero_init_residuals: false,
         }
     }
 }
@@ -177,6 +200,8 @@ impl ModelConfig {
             local_k: self.local_k,
             leaky_slope: self.leaky_slope,
             length_scale: self.length_scale,
+            fourier_bands: self.fourier_bands,
+            zero_init_residuals: self.zero_init_residuals,
             ..preset
         }
     }
@@ -224,6 +249,12 @@ impl ModelConfig {
             return bad(format!(
                 "model.length_scale = {} (a positive length, m)",
                 self.length_scale
+            ));
+        }
+        if self.fourier_bands > 16 {
+            return bad(format!(
+                "model.fourier_bands = {} (0 to 16)",
+                self.fourier_bands
             ));
         }
         if !(0.0..1.0).contains(&self.leaky_slope) {

@@ -88,7 +88,7 @@ fn feastconv_matches_its_formula() {
     let (_, topo) = grid(4, 3);
     let g = Graph::new(&topo, &device);
     let (cin, cout, m) = (5, 4, 3);
-    let conv = FeaStConv::new(cin, cout, m, &device);
+    let conv = FeaStConv::new(cin, cout, m, false, &device);
     let x = Tensor::<3>::random([1, topo.vertices, cin], Distribution::Default, &device);
     let y = conv
         .forward(x.clone(), &g, &g.rows(1, &device))
@@ -436,5 +436,54 @@ fn forward_flops_match_hand_counts() {
     assert_eq!(
         forward_flops(&l, 5, 10, 7) - forward_flops(&g, 5, 10, 7),
         extra
+    );
+}
+
+#[test]
+fn the_positional_encoding_holds_the_coordinates_and_their_sines_and_cosines() {
+    let device = Device::default();
+    let x = Tensor::<3>::from_data(TensorData::new(vec![0.5f32, -1.0, 2.0], [1, 1, 3]), &device);
+    let e = learn::model::positional_encoding(x, 2);
+    assert_eq!(e.dims(), [1, 1, 15]);
+    let v: Vec<f32> = e.into_data().try_to_vec::<f32>().unwrap();
+    let want = [
+        0.5f32,
+        -1.0,
+        2.0, // xyz
+        0.5f32.sin(),
+        (-1.0f32).sin(),
+        2.0f32.sin(),
+        0.5f32.cos(),
+        (-1.0f32).cos(),
+        2.0f32.cos(),
+        1.0f32.sin(),
+        (-2.0f32).sin(),
+        4.0f32.sin(),
+        1.0f32.cos(),
+        (-2.0f32).cos(),
+        4.0f32.cos(),
+    ];
+    for (a, b) in v.iter().zip(want) {
+        assert!((a - b).abs() < 1e-6, "{v:?}");
+    }
+    // The encoding widens the garment MLP's input and counts in the FLOPs; 17 bands are refused.
+    let c = ModelConfig {
+        fourier_bands: 4,
+        ..ModelConfig::default()
+    };
+    c.validate().unwrap();
+    assert!(
+        learn::model::forward_flops(&c, 0, 1000, 8)
+            > learn::model::forward_flops(&ModelConfig::default(), 0, 1000, 8)
+    );
+    let bad = ModelConfig {
+        fourier_bands: 17,
+        ..ModelConfig::default()
+    };
+    assert!(
+        bad.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("fourier_bands")
     );
 }

@@ -161,10 +161,10 @@ pub struct FeaStConv {
 
 impl FeaStConv {
     /// A convolution from `input` to `output` features with `heads` attention heads.
-    pub fn new(input: usize, output: usize, heads: usize, device: &Device) -> Self {
+    pub fn new(input: usize, output: usize, heads: usize, zero: bool, device: &Device) -> Self {
         let lin = LinearConfig::new(heads * input, output)
             .with_bias(false)
-            .with_initializer(he())
+            .with_initializer(if zero { Initializer::Zeros } else { he() })
             .init(device);
         let u = LinearConfig::new(input, heads)
             .with_bias(false)

@@ -124,7 +124,15 @@ pub struct ConvStack {
 impl ConvStack {
     fn new(c: &ModelConfig, device: &Device) -> Self {
         let blocks = (0..c.conv_blocks)
-            .map(|_| FeaStConv::new(c.conv_width + 3, c.conv_width, c.conv_heads, device))
+            .map(|_| {
+                FeaStConv::new(
+                    c.conv_width + 3,
+                    c.conv_width,
+                    c.conv_heads,
+                    c.zero_init_residuals,
+                    device,
+                )
+            })
             .collect();
         Self {
             blocks,
@@ -176,6 +184,28 @@ pub struct GarNet {
     local_points: usize,
     #[module(skip)]
     length_scale: f64,
+    #[module(skip)]
+    fourier_bands: usize,
+}
+
+/// Inputs of the garment point-wise MLP: xyz and, with `fourier_bands`, their encoding.
+fn garment_inputs(c: &ModelConfig) -> usize {
+    3 + 6 * c.fourier_bands
+}
+
+/// The positional encoding of [`ModelConfig::fourier_bands`]: `[x, sin(x), cos(x),
+/// sin(2x), cos(2x), ...]` to `2^(bands-1) x`, per coordinate.
+///
+/// # Shapes
+/// `[B, N, 3]` -> `[B, N, 3 + 6 bands]`.
+pub fn positional_encoding(x: Tensor<3>, bands: usize) -> Tensor<3> {
+    let mut parts = vec![x.clone()];
+    for k in 0..bands {
+        let scaled = x.clone() * (1u64 << k) as f64;
+        parts.push(scaled.clone().sin());
+        parts.push(scaled.cos());
+    }
+    Tensor::cat(parts, 2)
 }
 
 /// Width of the local body feature after its reduction layer (our choice).
@@ -199,7 +229,7 @@ impl GarNet {
         Self {
             body: (c.variant != Variant::GlobalParams).then(|| BodyStream::new(c, device)),
             local_in: local.then(|| LinearConfig::new(body_point, LOCAL_WIDTH).init(device)),
-            garment_mlp: Mlp::new(3, &c.garment_mlp, c.leaky_slope, device),
+            garment_mlp: Mlp::new(garment_inputs(c), &c.garment_mlp, c.leaky_slope, device),
             conv_in: SplitLinear::new(&[cg, global], c.conv_width, device),
             convs: c
                 .variant
@@ -216,6 +246,7 @@ impl GarNet {
             local_k: c.local_k,
             local_points: c.local_points(),
             length_scale: c.length_scale,
+            fourier_bands: c.fourier_bands,
         }
     }
 
@@ -251,7 +282,9 @@ impl GarNet {
         let global = body_global.unsqueeze_dim::<3>(1); // [B, 1, G]
         // Garment stream.
         let xyz = input.warped.clone() * inv; // [B, N, 3]
-        let point = self.garment_mlp.forward(xyz.clone()); // [B, N, Cg]
+        let point = self
+            .garment_mlp
+            .forward(positional_encoding(xyz.clone(), self.fourier_bands)); // [B, N, Cg]
         let h0 = leaky_relu(
             self.conv_in.forward(vec![point.clone(), global.clone()]),
             self.slope,
@@ -322,7 +355,7 @@ pub fn forward_flops(c: &ModelConfig, params: usize, vertices: usize, slots: usi
         f += mlp(p, *point.last().unwrap(), last);
     }
     let cg = *c.garment_mlp.last().unwrap();
-    f += mlp(n, 3, &c.garment_mlp);
+    f += mlp(n, garment_inputs(c), &c.garment_mlp);
     f += dense(n, cg, c.conv_width) + dense(1.0, global, c.conv_width);
     if c.variant.has_mesh_convolutions() {
         let (ci, m, k) = (c.conv_width + 3, c.conv_heads, slots);
