@@ -487,3 +487,25 @@ fn the_positional_encoding_holds_the_coordinates_and_their_sines_and_cosines() {
             .contains("fourier_bands")
     );
 }
+
+#[test]
+fn a_block_that_starts_at_zero_adds_nothing_until_it_learns() {
+    let device = Device::default();
+    let (_, topo) = grid(4, 3);
+    let g = Graph::new(&topo, &device);
+    let x = Tensor::<3>::random([2, topo.vertices, 5], Distribution::Default, &device);
+    let rows = g.rows(2, &device);
+    let zero = FeaStConv::new(5, 4, 3, true, &device)
+        .forward(x.clone(), &g, &rows)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert!(zero.iter().all(|&v| v == 0.0), "{zero:?}");
+    // He-initialised, the same block's output is not zero.
+    let he = FeaStConv::new(5, 4, 3, false, &device)
+        .forward(x, &g, &rows)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert!(he.iter().any(|&v| v.abs() > 1e-3));
+}
