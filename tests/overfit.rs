@@ -1,5 +1,5 @@
 //! Every GarNet variant overfits a handful of samples: `drape train` on the two lowest-id
-//! training samples of the `handful` dataset (a 1k-vertex T-shirt, DQS 6.4 cm), L_vert only,
+//! training samples of the `handful` dataset (a 1k-vertex T-shirt, DQS 7.0 cm), L_vert only,
 //! 2,000 Adam steps with a cosine-decayed learning rate, and the training Edist must end
 //! below the 3 mm.
 //!
