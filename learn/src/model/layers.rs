@@ -160,7 +160,8 @@ pub struct FeaStConv {
 }
 
 impl FeaStConv {
-    /// A convolution from `input` to `output` features with `heads` attention heads.
+    /// A convolution from `input` to `output` features with `heads` attention heads; with
+    /// `zero` its output weights start at zero (a residual block that starts as the identity).
     pub fn new(input: usize, output: usize, heads: usize, zero: bool, device: &Device) -> Self {
         let lin = LinearConfig::new(heads * input, output)
             .with_bias(false)
