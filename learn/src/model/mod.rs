@@ -199,6 +199,9 @@ fn garment_inputs(c: &ModelConfig) -> usize {
 /// # Shapes
 /// `[B, N, 3]` -> `[B, N, 3 + 6 bands]`.
 pub fn positional_encoding(x: Tensor<3>, bands: usize) -> Tensor<3> {
+    if bands == 0 {
+        return x; // the default: no copy in the forward pass
+    }
     let mut parts = vec![x.clone()];
     for k in 0..bands {
         let scaled = x.clone() * (1u64 << k) as f64;
