@@ -303,6 +303,10 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         got("network")
     );
     assert!(got("mean-residual") > 0.0 && got("nearest-neighbour") > 0.0);
+    // The linear baseline: finite, and its strength one of those tried on validation.
+    assert!(got("linear").is_finite() && got("linear") > 0.0);
+    let lambda = m["linear_lambda"].as_f64().unwrap();
+    assert!(eval::linear::LAMBDAS.contains(&lambda), "{lambda}");
     // The curves rise from 0 to at most 1.
     for (kind, top) in [("distance_cm", 3.0), ("angle_deg", 45.0)] {
         let c = m["curves"][kind]["network"].as_array().unwrap();

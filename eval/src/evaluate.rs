@@ -5,7 +5,10 @@
 //! - **DQS**: the warped template `M` itself (the paper's Table 1 baseline);
 //! - **mean residual**: `M` plus the training split's mean displacement `mean(G - M)`;
 //! - **nearest neighbour**: `M` plus the displacement `G_j - M_j` of the training sample
-//!   `j` with the closest shape and pose ([`pose_shape_distance`]).
+//!   `j` with the closest shape and pose ([`pose_shape_distance`]);
+//! - **linear**: `M` plus a ridge regression of the displacement on the shape and the bone
+//!   rotation matrices, fitted on the training split, its strength picked on the validation
+//!   split ([`crate::linear`]; on the training split itself it is an in-sample fit).
 //!
 //! Per sample and method: Edist, Enorm, L_MC and L_RQ^K, the physics energies and the
 //! interpenetration ratio; the simulator's own energies and interpenetration for reference;
@@ -24,6 +27,7 @@ use learn::predict::Predictor;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::linear;
 use crate::metrics::{self, Curve, Energies, Fabric, Physics};
 
 /// Evaluation failed.
@@ -65,7 +69,13 @@ pub struct EvalOptions {
 }
 
 /// The methods, in report order.
-pub const METHODS: [&str; 4] = ["network", "dqs", "mean-residual", "nearest-neighbour"];
+pub const METHODS: [&str; 5] = [
+    "network",
+    "dqs",
+    "mean-residual",
+    "nearest-neighbour",
+    "linear",
+];
 
 /// Display names of [`METHODS`] (the network's is its variant's).
 pub fn method_title(method: &str, network: &str) -> String {
@@ -74,6 +84,7 @@ pub fn method_title(method: &str, network: &str) -> String {
         "dqs" => "DQS".into(),
         "mean-residual" => "Mean residual".into(),
         "nearest-neighbour" => "Nearest neighbour".into(),
+        "linear" => "Linear (ridge)".into(),
         "simulator" => "Simulator".into(),
         m => m.into(),
     }
@@ -136,6 +147,11 @@ pub struct Evaluation {
     pub network: String,
     /// Wall time of the whole evaluation (s).
     pub seconds: f64,
+    /// The linear baseline's ridge strength and, per strength tried, its validation Edist
+    /// (cm; empty without validation samples).
+    pub linear_lambda: f64,
+    /// See `linear_lambda`.
+    pub linear_validation: Vec<(f64, f64)>,
 }
 
 /// Distance between two training keys: mean bone rotation angle (radians) plus the
@@ -180,17 +196,31 @@ fn progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
-/// The training split's mean displacement and the keys of its samples (one pass).
-fn training_summary(data: &Dataset, show: bool) -> Result<(Vec<Vec3>, Vec<Key>), EvalError> {
+/// The training split's mean displacement, the keys of its samples and the linear
+/// baseline's sums (one pass).
+fn training_summary(
+    data: &Dataset,
+    show: bool,
+) -> Result<(Vec<Vec3>, Vec<Key>, linear::Accumulator), EvalError> {
     let n = data.statics.garment_vertices.len();
     let mut sum = vec![glam::DVec3::ZERO; n];
     let mut keys = Vec::new();
-    let bar = progress(show, data.count(Split::Train), "training split: mean, keys");
+    let mut sums: Option<linear::Accumulator> = None;
+    let bar = progress(
+        show,
+        data.count(Split::Train),
+        "training split: mean, keys, linear",
+    );
     for s in data.samples(Split::Train) {
         let s = s?;
+        let mut disp = Vec::with_capacity(n);
         for ((acc, g), m) in sum.iter_mut().zip(&s.row.draped).zip(&s.row.warped) {
             *acc += (*g - *m).as_dvec3();
+            disp.push(*g - *m);
         }
+        let x = linear::features(&s.row.shape, &s.row.pose);
+        sums.get_or_insert_with(|| linear::Accumulator::new(x.len(), n))
+            .add(&x, &disp);
         keys.push(Key::of(&s.row));
         bar.inc(1);
     }
@@ -202,7 +232,8 @@ fn training_summary(data: &Dataset, show: bool) -> Result<(Vec<Vec3>, Vec<Key>),
         )));
     }
     let k = keys.len() as f64;
-    Ok((sum.iter().map(|s| (*s / k).as_vec3()).collect(), keys))
+    let sums = sums.expect("at least one training sample");
+    Ok((sum.iter().map(|s| (*s / k).as_vec3()).collect(), keys, sums))
 }
 
 /// The evaluated samples of `split` (at most `limit`).
@@ -237,7 +268,19 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         )));
     }
     // Baselines: the mean displacement and, per evaluated sample, the nearest training key.
-    let (mean_disp, keys) = training_summary(data, opts.progress)?;
+    let (mean_disp, keys, sums) = training_summary(data, opts.progress)?;
+    let validation: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = data
+        .samples(Split::Val)
+        .map(|s| {
+            s.map(|s| {
+                let r = s.row;
+                (linear::features(&r.shape, &r.pose), r.warped, r.draped)
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let (linear, linear_validation) = linear::fit(&sums, &validation).ok_or_else(|| {
+        EvalError::Invalid("the linear baseline's normal equations cannot be solved".into())
+    })?;
     let mut neighbour_of: HashMap<u64, u64> = HashMap::new();
     for s in split_samples(data, opts.split, opts.limit) {
         let s = s?;
@@ -323,13 +366,17 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
             .map(|(s, pred)| {
                 let row = &s.row;
                 let nn = &displacement[&neighbour_of[&row.id]];
-                let garments: [(&str, Vec<Vec3>); 4] = [
+                let garments: [(&str, Vec<Vec3>); 5] = [
                     ("network", pred),
                     ("dqs", row.warped.clone()),
                     ("mean-residual", mean_residual(row)),
                     (
                         "nearest-neighbour",
                         row.warped.iter().zip(nn).map(|(m, d)| *m + *d).collect(),
+                    ),
+                    (
+                        "linear",
+                        linear.predict(&linear::features(&row.shape, &row.pose), &row.warped),
                     ),
                 ];
                 let floor = row.body.iter().map(|p| p.y).fold(f32::MAX, f32::min);
@@ -411,6 +458,8 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         batch: opts.batch.max(1),
         network: net.config.model.variant.paper_name().to_string(),
         seconds: t0.elapsed().as_secs_f64(),
+        linear_lambda: linear.lambda,
+        linear_validation,
     })
 }
 

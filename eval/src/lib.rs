@@ -5,9 +5,9 @@
 //!   and drapes.
 //! - [`metrics`]: Edist, Enorm, average-precision curves, physics energies and the
 //!   interpenetration ratio.
-//! - [`evaluate`]: a trained network and the DQS, mean-residual and nearest-neighbour
+//! - [`evaluate`]: a trained network and the DQS, mean-residual, nearest-neighbour and linear
 //!   baselines measured on a dataset split (`drape eval`); [`report`] writes the report
-//!   folder; [`exr`] the float error images.
+//!   folder; [`exr`] the float error images; [`linear`] the linear (ridge) baseline.
 //! - [`speed`]: the speed-up of a network over the simulator (`drape bench speedup`).
 //! - [`sensitivity`]: how far drapes move under a micrometre disturbance of the
 //!   simulation (`drape data sensitivity`), the part of a target no input determines.
@@ -17,6 +17,7 @@
 
 pub mod evaluate;
 pub mod exr;
+pub mod linear;
 pub mod metrics;
 pub mod plot;
 pub mod render;

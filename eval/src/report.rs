@@ -340,6 +340,8 @@ pub fn write_report(
         batch: usize,
         renders: BTreeMap<&'a str, u64>,
         non_finite_predictions: usize,
+        linear_lambda: f64,
+        linear_validation_edist_cm: &'a [(f64, f64)],
         samples: &'a [crate::evaluate::SampleEval],
     }
     let curve_points = |c: &BTreeMap<String, crate::metrics::Curve>| {
@@ -371,6 +373,8 @@ pub fn write_report(
             .map(|((n, _), id)| (*n, *id))
             .collect(),
         non_finite_predictions: non_finite,
+        linear_lambda: ev.linear_lambda,
+        linear_validation_edist_cm: &ev.linear_validation,
         samples: &ev.samples,
     };
     files.push((
@@ -430,11 +434,28 @@ pub fn write_report(
     let dqs = sums["dqs"].edist_cm.0;
     writeln!(
         md,
-        "\n{} is at {:.1}% of the DQS baseline's Edist; the mean-residual and nearest-neighbour baselines at {:.1}% and {:.1}%.\n",
+        "\n{} is at {:.1}% of the DQS baseline's Edist; the mean-residual, nearest-neighbour and linear baselines at {:.1}%, {:.1}% and {:.1}%.\n",
         ev.network,
         100.0 * net_sum.edist_cm.0 / dqs,
         100.0 * sums["mean-residual"].edist_cm.0 / dqs,
-        100.0 * sums["nearest-neighbour"].edist_cm.0 / dqs
+        100.0 * sums["nearest-neighbour"].edist_cm.0 / dqs,
+        100.0 * sums["linear"].edist_cm.0 / dqs
+    )
+    .unwrap();
+    let tried: Vec<String> = ev
+        .linear_validation
+        .iter()
+        .map(|(l, e)| format!("{l} ({e:.2} cm)"))
+        .collect();
+    writeln!(
+        md,
+        "The linear baseline is a ridge regression of the displacement G - M on the shape parameters and the bones' rotation matrices, fitted on the training split (`eval/src/linear.rs`); its strength {} was picked by validation Edist{}.\n",
+        ev.linear_lambda,
+        if tried.is_empty() {
+            " (no validation samples: the default)".to_string()
+        } else {
+            format!(" among {}", tried.join(", "))
+        }
     )
     .unwrap();
     writeln!(

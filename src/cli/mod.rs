@@ -60,7 +60,7 @@ pub enum Command {
     /// Drape a garment with a trained network: the DQS warp onto a shaped, posed body, then
     /// the network (the run folder knows its garment).
     Predict(Box<learn::PredictArgs>),
-    /// Evaluate a trained network and the DQS, mean-residual and nearest-neighbour
+    /// Evaluate a trained network and the DQS, mean-residual, nearest-neighbour and linear
     /// baselines on a dataset split: Edist, Enorm, curvature, physics, curves and renders
     /// in a report folder.
     Eval(evaluate::EvalArgs),
