@@ -427,3 +427,64 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     let (ok, text) = train(&bad, &data, &tmp.path().join("bad"), &[]);
     assert!(!ok && text.contains("epochs"), "{text}");
 }
+
+/// `model.prior = "linear"`: the run fits the prior on the training split, keeps it in
+/// `prior.safetensors`, and the network's input garment is M plus that prior's
+/// displacement (cross-fitted for training samples, the full fit elsewhere); a run folder
+/// without its prior is refused.
+#[test]
+fn linear_prior_run() {
+    use learn::linear::{Linear, Prior, features_from_params};
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&data));
+    assert!(ok, "{text}");
+    let run_dir = tmp.path().join("run");
+    let cfg = config(tmp.path(), 2, "local", "\nprior = \"linear\"");
+    let (ok, text) = train(&cfg, &data, &run_dir, &[]);
+    assert!(ok && text.contains("linear prior:"), "{text}");
+    let saved = std::fs::read_to_string(run_dir.join("config.toml")).unwrap();
+    assert!(saved.contains("prior = \"linear\""), "{saved}");
+
+    let d = dataset::reader::Dataset::open(&data).unwrap();
+    let file = Linear::load(&run_dir.join("prior.safetensors")).unwrap();
+    assert_eq!(file.vertices(), d.statics.garment_vertices.len());
+    // The fit the run kept is the one made again from the data (it is deterministic).
+    let fit = Prior::fit(&d, None, None, false).unwrap();
+    assert_eq!(fit.model.lambda, file.lambda);
+    let net = learn::predict::Predictor::open(&run_dir, &d.statics).unwrap();
+    let rows =
+        |split| -> Vec<dataset::shard::Row> { d.samples(split).map(|s| s.unwrap().row).collect() };
+    let (train_rows, test_rows) = (
+        rows(dataset::config::Split::Train),
+        rows(dataset::config::Split::Test),
+    );
+    for row in &test_rows {
+        let params = learn::data::row_params(row);
+        let want = file.displacement(&features_from_params(&params));
+        let got = net.prepare_row(row);
+        for ((p, m), d) in got.warped.iter().zip(&row.warped).zip(&want) {
+            assert!((*p + got.root - (*m + *d)).length() < 1e-5);
+        }
+    }
+    // Training samples get the fit without their body, which differs from the full fit.
+    let row = &train_rows[0];
+    let own = &fit.held_out[&row.id];
+    let full = file.displacement(&features_from_params(&learn::data::row_params(row)));
+    let gap = own
+        .iter()
+        .zip(&full)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max);
+    assert!(
+        gap > 1e-4,
+        "the cross-fitted prior equals the full fit ({gap} m)"
+    );
+    let (preds, _) = net.predict_rows(&test_rows);
+    assert!(preds.iter().flatten().all(|p| p.is_finite()));
+
+    // Without its prior the run is refused, naming the file.
+    std::fs::remove_file(run_dir.join("prior.safetensors")).unwrap();
+    let e = learn::predict::Predictor::open(&run_dir, &d.statics).unwrap_err();
+    assert!(e.to_string().contains("prior.safetensors"), "{e}");
+}

@@ -17,7 +17,7 @@
 
 pub mod evaluate;
 pub mod exr;
-pub mod linear;
+pub use learn::linear;
 pub mod metrics;
 pub mod plot;
 pub mod render;

@@ -133,6 +133,32 @@ pub struct ModelConfig {
     /// false.
     #[serde(skip_serializing_if = "is_false")]
     pub zero_init_residuals: bool,
+    /// The garment the network starts from (default `none`: the DQS warp M, as the paper).
+    /// `linear`: M plus the linear (ridge) map from shape and bone rotations to the
+    /// displacement, fitted on the training split when the run starts (cross-fitted for the
+    /// training samples, `learn::linear::Prior`) and kept in the run's `prior.safetensors`;
+    /// the network predicts what is left (docs/learn.md, session 28). Left out of the saved
+    /// config when `none`.
+    #[serde(skip_serializing_if = "PriorKind::is_none")]
+    pub prior: PriorKind,
+}
+
+/// What the network's input garment is ([`ModelConfig::prior`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PriorKind {
+    /// The DQS warp M (the paper).
+    #[default]
+    None,
+    /// M plus the linear prior's displacement.
+    Linear,
+}
+
+impl PriorKind {
+    /// The paper's input.
+    pub fn is_none(&self) -> bool {
+        *self == PriorKind::None
+    }
 }
 
 fn is_zero(n: &usize) -> bool {
@@ -164,6 +190,7 @@ impl Default for ModelConfig {
             length_scale: 0.1,
             fourier_bands: 0,
             zero_init_residuals: false,
+            prior: PriorKind::None,
         }
     }
 }
@@ -202,6 +229,7 @@ impl ModelConfig {
             length_scale: self.length_scale,
             fourier_bands: self.fourier_bands,
             zero_init_residuals: self.zero_init_residuals,
+            prior: self.prior,
             ..preset
         }
     }

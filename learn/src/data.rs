@@ -26,7 +26,8 @@ pub struct Prepared {
     pub body: Vec<f32>,
     /// Shape and pose parameters.
     pub params: Vec<f32>,
-    /// Warped garment M, root-relative.
+    /// The network's input garment, root-relative: the warped garment M, plus the linear
+    /// prior's displacement with `model.prior = "linear"`.
     pub warped: Vec<Vec3>,
     /// Simulated garment G, root-relative (absent at inference).
     pub target: Option<Vec<Vec3>>,
@@ -55,6 +56,8 @@ pub struct Preprocessor {
     push_out: f32,
     /// L_RQ neighbourhood size found on each target (0: none).
     rq_k: usize,
+    /// The linear prior added to M (`model.prior = "linear"`).
+    prior: Option<std::sync::Arc<crate::linear::Prior>>,
 }
 
 impl Preprocessor {
@@ -73,7 +76,19 @@ impl Preprocessor {
             local_subset,
             push_out,
             rq_k,
+            prior: None,
         }
+    }
+
+    /// The same, adding `prior`'s displacement to every warped garment.
+    pub fn with_prior(mut self, prior: std::sync::Arc<crate::linear::Prior>) -> Self {
+        self.prior = Some(prior);
+        self
+    }
+
+    /// The linear prior, if the model has one.
+    pub fn prior(&self) -> Option<&crate::linear::Prior> {
+        self.prior.as_deref()
     }
 
     /// The L_pen push-out distance, m.
@@ -105,7 +120,12 @@ impl Preprocessor {
                 p
             })
             .collect();
-        let warped = rel(warped);
+        let mut warped = rel(warped);
+        if let Some(prior) = &self.prior {
+            for (m, d) in warped.iter_mut().zip(prior.displacement(Some(id), &params)) {
+                *m += d;
+            }
+        }
         let (pool, local) = if self.config.variant == Variant::Local {
             let down: Vec<Vec3> = self.local_subset.iter().map(|&i| sub[i as usize]).collect();
             let pool = knn(&sub, &down, self.config.local_pool_k);

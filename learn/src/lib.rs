@@ -3,6 +3,8 @@
 //!
 //! - [`model`]: **the GarNet forward pass** ([`model::GarNet::forward`]) and its blocks.
 //! - [`loss`]: L_vert, L_pen, L_norm, L_bend, the curvature losses.
+//! - [`linear`]: the linear (ridge) map from shape and pose to the displacement: a baseline
+//!   of `drape eval` and the optional prior under a network (`model.prior`).
 //! - [`data`]: dataset rows to network inputs (k-NN with kiddo).
 //! - [`topology`]: the garment's mesh graph.
 //! - [`config`]: model and training configs (`configs/train/*.toml`).
@@ -11,6 +13,7 @@
 pub mod bench;
 pub mod config;
 pub mod data;
+pub mod linear;
 pub mod loss;
 pub mod model;
 pub mod predict;

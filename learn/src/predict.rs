@@ -9,8 +9,11 @@ use dataset::shard::{Row, Static};
 use glam::Vec3;
 
 use crate::LearnError;
-use crate::config::TrainConfig;
+use std::sync::Arc;
+
+use crate::config::{PriorKind, TrainConfig};
 use crate::data::{Prepared, Preprocessor, collate, row_params};
+use crate::linear::{Linear, Prior};
 use crate::model::{GarNet, Graph};
 use crate::run::open_run;
 use crate::topology::Topology;
@@ -41,9 +44,10 @@ pub struct Timing {
 }
 
 impl Predictor {
-    /// Loads `run`'s best weights for the garment and body described by `statics` (the
-    /// dataset's static file, or the template and body model). Refuses a garment whose
-    /// vertex count is not the run's.
+    /// Loads `run`'s best weights (and its linear prior, `prior.safetensors`, if the model
+    /// has one) for the garment and body described by `statics` (the dataset's static
+    /// file, or the template and body model). Refuses a garment whose vertex count is not
+    /// the run's.
     pub fn open(run: &Path, statics: &Static) -> Result<Self, LearnError> {
         let (config, info) = open_run(run)?;
         let n = statics.garment_vertices.len();
@@ -64,6 +68,18 @@ impl Predictor {
         }
         let mut p = Self::untrained(&config, statics);
         p.model = load_model(p.model, &best)?;
+        if config.model.prior == PriorKind::Linear {
+            let path = run.join("prior.safetensors");
+            let prior = Linear::load(&path)?;
+            if prior.vertices() != n {
+                return Err(LearnError::Mismatch(format!(
+                    "{}: a linear prior for {} vertices; the garment has {n}",
+                    path.display(),
+                    prior.vertices()
+                )));
+            }
+            p.pre = p.pre.with_prior(Arc::new(Prior::of(prior)));
+        }
         p.info = info;
         Ok(p)
     }
@@ -76,8 +92,13 @@ impl Predictor {
         let params = crate::data::param_count(statics.bones);
         let n = statics.garment_vertices.len();
         let topology = Topology::new(n, &statics.garment_triangles);
+        let mut pre = Preprocessor::new(statics, &config.model, config.loss.pen_push_out, 0);
+        if config.model.prior == PriorKind::Linear {
+            let features = crate::linear::features_from_params(&vec![0.0; params]).len();
+            pre = pre.with_prior(Arc::new(Prior::of(Linear::zeros(features, n))));
+        }
         Self {
-            pre: Preprocessor::new(statics, &config.model, config.loss.pen_push_out, 0),
+            pre,
             graph: Graph::new(&topology, &device),
             model: GarNet::new(&config.model, params, &device),
             params,

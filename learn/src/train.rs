@@ -385,6 +385,39 @@ fn epoch_groups(
         .collect()
 }
 
+/// Fits the linear prior of `model.prior = "linear"` on the training samples (`subset` of
+/// them if given) and keeps the fit on all of them in `run/prior.safetensors`. The fit is
+/// deterministic, so a resumed run makes it again and finds the file it wrote.
+fn linear_prior(
+    data: &Dataset,
+    subset: Option<&std::collections::HashSet<u64>>,
+    run: &Path,
+    progress: bool,
+) -> Result<std::sync::Arc<crate::linear::Prior>, LearnError> {
+    let prior = crate::linear::Prior::fit(data, subset, None, progress)?;
+    let tried: Vec<String> = prior
+        .tried
+        .iter()
+        .map(|(l, e)| format!("{l}: {e:.2} cm"))
+        .collect();
+    eprintln!(
+        "linear prior: {} training samples, strength {} (validation Edist {})",
+        prior.held_out.len(),
+        prior.model.lambda,
+        tried.join(", ")
+    );
+    let path = run.join("prior.safetensors");
+    if !path.exists() {
+        sim::io::write_all_or_nothing(&[(&path, &prior.model.encode())]).map_err(|e| {
+            LearnError::Io {
+                path: e.path.clone(),
+                source: e.source,
+            }
+        })?;
+    }
+    Ok(std::sync::Arc::new(prior))
+}
+
 /// Trains (or resumes) a run. Returns the final state.
 pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnError> {
     let data = Dataset::open(&opts.data)?;
@@ -441,6 +474,14 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             ids.into_iter().collect()
         });
     let mut setup = setup;
+    if config.model.prior == crate::config::PriorKind::Linear {
+        setup.pre = setup.pre.with_prior(linear_prior(
+            &data,
+            subset.as_ref(),
+            &opts.run,
+            opts.progress,
+        )?);
+    }
     if config.loss.has_curvature() && config.loss.rescale_curvature {
         setup.scales = curvature_scales(&setup, &model, &data, &opts.run)?;
     }
