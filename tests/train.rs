@@ -272,6 +272,7 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         "best.png",
         "median.png",
         "worst.png",
+        "median-linear.png",
         "best-error.exr",
     ] {
         assert!(report.join(f).exists(), "{f} missing: {text}");

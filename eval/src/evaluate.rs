@@ -152,6 +152,8 @@ pub struct Evaluation {
     pub linear_lambda: f64,
     /// See `linear_lambda`.
     pub linear_validation: Vec<(f64, f64)>,
+    /// The linear baseline (for the report's render of it).
+    pub linear: linear::Linear,
 }
 
 /// Distance between two training keys: mean bone rotation angle (radians) plus the
@@ -460,6 +462,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         seconds: t0.elapsed().as_secs_f64(),
         linear_lambda: linear.lambda,
         linear_validation,
+        linear,
     })
 }
 

@@ -154,6 +154,9 @@ pub fn sample_render(
 /// The colour bar's title under a network's render.
 pub const NETWORK_LABEL: &str = "network error (cm): right pair; simulator: left pair";
 
+/// The colour bar's title under the linear baseline's render.
+pub const LINEAR_LABEL: &str = "linear baseline error (cm): right pair; simulator: left pair";
+
 fn fmt_ms(v: (f64, f64), digits: usize) -> String {
     format!("{:.digits$} ± {:.digits$}", v.0, v.1)
 }
@@ -299,6 +302,7 @@ pub fn write_report(
     let ids: Vec<u64> = picks.iter().map(|p| ev.samples[p.1].id).collect();
     let rows = rows_of(data, split, &ids)?;
     let mut render_notes: BTreeMap<&str, String> = BTreeMap::new();
+    let mut linear_render = false;
     if !rows.is_empty() {
         let net = Predictor::open(run, &data.statics)?;
         let (preds, _) = net.predict_rows(&rows);
@@ -321,6 +325,22 @@ pub fn write_report(
                 }
                 Err(e) => {
                     render_notes.insert(name, format!("render failed: {e}"));
+                }
+            }
+            // The linear baseline on the median sample, for comparison.
+            if *name == "median" {
+                let x = crate::linear::features(&row.shape, &row.pose);
+                let lin = ev.linear.predict(&x, &row.warped);
+                if let Ok((img, _)) = sample_render(
+                    &row.body,
+                    &st.body_triangles,
+                    &st.garment_triangles,
+                    &row.draped,
+                    &lin,
+                    LINEAR_LABEL,
+                ) {
+                    files.push((out.join("median-linear.png"), encode_png(&img)?));
+                    linear_render = true;
                 }
             }
         }
@@ -527,6 +547,15 @@ pub fn write_report(
             md,
             "**{name}**: sample {id} ({}), Edist {:.2} cm (DQS {:.2} cm), Enorm {:.1}°\n\n{picture}\n",
             s.family, s.methods["network"].edist_cm, s.methods["dqs"].edist_cm, s.methods["network"].enorm_deg
+        )
+        .unwrap();
+    }
+    if linear_render {
+        let k = picks[1].1;
+        writeln!(
+            md,
+            "**median, linear baseline**: the same sample, the linear baseline's drape coloured by its distance to the simulator's, Edist {:.2} cm, Enorm {:.1}°\n\n![median, linear](median-linear.png)\n",
+            ev.samples[k].methods["linear"].edist_cm, ev.samples[k].methods["linear"].enorm_deg
         )
         .unwrap();
     }
