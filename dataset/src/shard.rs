@@ -66,6 +66,17 @@ pub struct Row {
     pub root: Vec3,
 }
 
+impl Row {
+    /// The simulator's departure from the warp, `G - M` per vertex (m).
+    pub fn displacement(&self) -> Vec<Vec3> {
+        self.draped
+            .iter()
+            .zip(&self.warped)
+            .map(|(g, m)| *g - *m)
+            .collect()
+    }
+}
+
 /// Shard metadata.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ShardMeta {

@@ -215,10 +215,9 @@ fn training_summary(
     );
     for s in data.samples(Split::Train) {
         let s = s?;
-        let mut disp = Vec::with_capacity(n);
-        for ((acc, g), m) in sum.iter_mut().zip(&s.row.draped).zip(&s.row.warped) {
-            *acc += (*g - *m).as_dvec3();
-            disp.push(*g - *m);
+        let disp = s.row.displacement();
+        for (acc, d) in sum.iter_mut().zip(&disp) {
+            *acc += d.as_dvec3();
         }
         let x = linear::features(&s.row.shape, &s.row.pose);
         sums.get_or_insert_with(|| linear::Accumulator::new(x.len(), n))
@@ -305,14 +304,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     for s in data.samples(Split::Train) {
         let s = s?;
         if wanted.contains(&s.row.id) {
-            let d = s
-                .row
-                .draped
-                .iter()
-                .zip(&s.row.warped)
-                .map(|(g, m)| *g - *m)
-                .collect();
-            displacement.insert(s.row.id, d);
+            displacement.insert(s.row.id, s.row.displacement());
         }
     }
 

@@ -322,13 +322,7 @@ impl Prior {
                 continue;
             }
             let x = features(&s.row.shape, &s.row.pose);
-            let d: Vec<Vec3> = s
-                .row
-                .draped
-                .iter()
-                .zip(&s.row.warped)
-                .map(|(g, m)| *g - *m)
-                .collect();
+            let d = s.row.displacement();
             total.add(&x, &d);
             folds[(s.record.plan.body % FOLDS) as usize].add(&x, &d);
         }
