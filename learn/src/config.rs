@@ -541,6 +541,39 @@ mod tests {
     }
 
     #[test]
+    fn prior_defaults_to_none_and_is_left_out_of_saved_configs() {
+        let c = parse("").unwrap();
+        assert_eq!(c.model.prior, PriorKind::None);
+        let saved = toml::to_string(&c).unwrap();
+        assert!(!saved.contains("prior"), "{saved}");
+        let c = parse("[model]\nprior = \"linear\"").unwrap();
+        assert_eq!(c.model.prior, PriorKind::Linear);
+        let saved = toml::to_string(&c).unwrap();
+        assert!(saved.contains("prior = \"linear\""), "{saved}");
+        assert_eq!(toml::from_str::<TrainConfig>(&saved).unwrap(), c);
+        assert_eq!(c.model.with_widths(Widths::Paper).prior, PriorKind::Linear);
+        let e = parse("[model]\nprior = \"quadratic\"")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("quadratic") && e.contains("linear"), "{e}");
+    }
+
+    /// Every committed training config parses and validates.
+    #[test]
+    fn committed_configs_load() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/train");
+        let mut n = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                TrainConfig::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                n += 1;
+            }
+        }
+        assert!(n >= 20, "{n} configs in {}", dir.display());
+    }
+
+    #[test]
     fn adam_epsilon_defaults_to_burns_and_is_left_out_of_saved_configs() {
         let c = parse("").unwrap();
         assert_eq!(c.adam_epsilon, 1e-5);
