@@ -30,7 +30,7 @@ use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 use dataset::config::Split;
-use dataset::reader::Dataset;
+use dataset::reader::{Dataset, Sample};
 use glam::{Mat3, Quat, Vec3};
 use nalgebra::{DMatrix, DVector};
 
@@ -312,21 +312,27 @@ impl Prior {
         let width = features(&[0.0; 9], &vec![Quat::IDENTITY; data.statics.bones]).len();
         let mut total = Accumulator::new(width, n);
         let mut folds: Vec<Accumulator> = (0..FOLDS).map(|_| Accumulator::new(width, n)).collect();
-        let wanted = |id: u64| subset.is_none_or(|s| s.contains(&id));
-        let bar = crate::run::progress(progress, data.count(Split::Train) as u64);
-        bar.set_message("linear prior: sums");
-        for s in data.samples(Split::Train) {
-            let s = s?;
-            bar.inc(1);
-            if !wanted(s.row.id) {
-                continue;
+        let fold = |s: &Sample| (s.record.plan.body % FOLDS) as usize;
+        // Each wanted training sample, one shard in memory at a time, with a progress bar.
+        let each = |what: &str, f: &mut dyn FnMut(&Sample)| -> Result<(), LearnError> {
+            let bar = crate::run::progress(progress, data.count(Split::Train) as u64);
+            bar.set_message(format!("linear prior: {what}"));
+            for s in data.samples(Split::Train) {
+                let s = s?;
+                bar.inc(1);
+                if subset.is_none_or(|k| k.contains(&s.row.id)) {
+                    f(&s);
+                }
             }
+            bar.finish_and_clear();
+            Ok(())
+        };
+        each("sums", &mut |s| {
             let x = features(&s.row.shape, &s.row.pose);
             let d = s.row.displacement();
             total.add(&x, &d);
-            folds[(s.record.plan.body % FOLDS) as usize].add(&x, &d);
-        }
-        bar.finish_and_clear();
+            folds[fold(s)].add(&x, &d);
+        })?;
         if total.samples() == 0 {
             return Err(LearnError::Mismatch(format!(
                 "{} has no training samples to fit the linear prior on",
@@ -363,23 +369,11 @@ impl Prior {
             })
             .collect();
         let mut held_out = HashMap::new();
-        let bar = crate::run::progress(progress, data.count(Split::Train) as u64);
-        bar.set_message("linear prior: cross-fitted");
-        for s in data.samples(Split::Train) {
-            let s = s?;
-            bar.inc(1);
-            if !wanted(s.row.id) {
-                continue;
-            }
-            let m = fold_models[(s.record.plan.body % FOLDS) as usize]
-                .as_ref()
-                .unwrap_or(&model);
-            held_out.insert(
-                s.row.id,
-                m.displacement(&features(&s.row.shape, &s.row.pose)),
-            );
-        }
-        bar.finish_and_clear();
+        each("cross-fitted", &mut |s| {
+            let m = fold_models[fold(s)].as_ref().unwrap_or(&model);
+            let x = features(&s.row.shape, &s.row.pose);
+            held_out.insert(s.row.id, m.displacement(&x));
+        })?;
         Ok(Self {
             model,
             held_out,
