@@ -147,13 +147,11 @@ pub struct Evaluation {
     pub network: String,
     /// Wall time of the whole evaluation (s).
     pub seconds: f64,
-    /// The linear baseline's ridge strength and, per strength tried, its validation Edist
-    /// (cm; empty without validation samples).
-    pub linear_lambda: f64,
-    /// See `linear_lambda`.
-    pub linear_validation: Vec<(f64, f64)>,
-    /// The linear baseline (for the report's render of it).
+    /// The linear baseline (its strength is `linear.lambda`).
     pub linear: linear::Linear,
+    /// Per ridge strength tried, the linear baseline's validation Edist (cm; empty without
+    /// validation samples).
+    pub linear_validation: Vec<(f64, f64)>,
 }
 
 /// Distance between two training keys: mean bone rotation angle (radians) plus the
@@ -270,16 +268,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     }
     // Baselines: the mean displacement and, per evaluated sample, the nearest training key.
     let (mean_disp, keys, sums) = training_summary(data, opts.progress)?;
-    let validation: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = data
-        .samples(Split::Val)
-        .map(|s| {
-            s.map(|s| {
-                let r = s.row;
-                (linear::features(&r.shape, &r.pose), r.warped, r.draped)
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    let (linear, linear_validation) = linear::fit(&sums, &validation).ok_or_else(|| {
+    let (linear, linear_validation) = linear::fit_on_validation(&sums, data)?.ok_or_else(|| {
         EvalError::Invalid("the linear baseline's normal equations cannot be solved".into())
     })?;
     let mut neighbour_of: HashMap<u64, u64> = HashMap::new();
@@ -452,9 +441,8 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         batch: opts.batch.max(1),
         network: net.config.model.variant.paper_name().to_string(),
         seconds: t0.elapsed().as_secs_f64(),
-        linear_lambda: linear.lambda,
-        linear_validation,
         linear,
+        linear_validation,
     })
 }
 

@@ -302,12 +302,13 @@ pub fn write_report(
     let ids: Vec<u64> = picks.iter().map(|p| ev.samples[p.1].id).collect();
     let rows = rows_of(data, split, &ids)?;
     let mut render_notes: BTreeMap<&str, String> = BTreeMap::new();
-    let mut linear_render = false;
+    // The evaluated sample whose linear-baseline render was written.
+    let mut linear_render: Option<usize> = None;
     if !rows.is_empty() {
         let net = Predictor::open(run, &data.statics)?;
         let (preds, _) = net.predict_rows(&rows);
         let st = &data.statics;
-        for ((name, _), (row, pred)) in picks.iter().zip(rows.iter().zip(&preds)) {
+        for ((name, k), (row, pred)) in picks.iter().zip(rows.iter().zip(&preds)) {
             match sample_render(
                 &row.body,
                 &st.body_triangles,
@@ -340,7 +341,7 @@ pub fn write_report(
                     LINEAR_LABEL,
                 ) {
                     files.push((out.join("median-linear.png"), encode_png(&img)?));
-                    linear_render = true;
+                    linear_render = Some(*k);
                 }
             }
         }
@@ -393,7 +394,7 @@ pub fn write_report(
             .map(|((n, _), id)| (*n, *id))
             .collect(),
         non_finite_predictions: non_finite,
-        linear_lambda: ev.linear_lambda,
+        linear_lambda: ev.linear.lambda,
         linear_validation_edist_cm: &ev.linear_validation,
         samples: &ev.samples,
     };
@@ -469,8 +470,8 @@ pub fn write_report(
         .collect();
     writeln!(
         md,
-        "The linear baseline is a ridge regression of the displacement G - M on the shape parameters and the bones' rotation matrices, fitted on the training split (`eval/src/linear.rs`); its strength {} was picked by validation Edist{}.\n",
-        ev.linear_lambda,
+        "The linear baseline is a ridge regression of the displacement G - M on the shape parameters and the bones' rotation matrices, fitted on the training split (`learn/src/linear.rs`); its strength {} was picked by validation Edist{}.\n",
+        ev.linear.lambda,
         if tried.is_empty() {
             " (no validation samples: the default)".to_string()
         } else {
@@ -550,8 +551,7 @@ pub fn write_report(
         )
         .unwrap();
     }
-    if linear_render {
-        let k = picks[1].1;
+    if let Some(k) = linear_render {
         writeln!(
             md,
             "**median, linear baseline**: the same sample, the linear baseline's drape coloured by its distance to the simulator's, Edist {:.2} cm, Enorm {:.1}°\n\n![median, linear](median-linear.png)\n",

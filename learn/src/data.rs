@@ -86,11 +86,6 @@ impl Preprocessor {
         self
     }
 
-    /// The linear prior, if the model has one.
-    pub fn prior(&self) -> Option<&crate::linear::Prior> {
-        self.prior.as_deref()
-    }
-
     /// The L_pen push-out distance, m.
     pub fn push_out(&self) -> f32 {
         self.push_out
@@ -122,9 +117,7 @@ impl Preprocessor {
             .collect();
         let mut warped = rel(warped);
         if let Some(prior) = &self.prior {
-            for (m, d) in warped.iter_mut().zip(prior.displacement(Some(id), &params)) {
-                *m += d;
-            }
+            prior.add_to(id, &params, &mut warped);
         }
         let (pool, local) = if self.config.variant == Variant::Local {
             let down: Vec<Vec3> = self.local_subset.iter().map(|&i| sub[i as usize]).collect();

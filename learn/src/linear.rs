@@ -290,12 +290,21 @@ impl Prior {
         }
     }
 
-    /// The displacement for a sample: its cross-fitted one if `id` is a training sample
-    /// of the fit, else the full model's on `params` ([`features_from_params`]).
-    pub fn displacement(&self, id: Option<u64>, params: &[f32]) -> Vec<Vec3> {
-        match id.and_then(|i| self.held_out.get(&i)) {
-            Some(d) => d.clone(),
-            None => self.model.displacement(&features_from_params(params)),
+    /// Adds a sample's displacement to `garment`: its cross-fitted one if `id` is a
+    /// training sample of the fit, else the full model's on `params`
+    /// ([`features_from_params`]).
+    pub fn add_to(&self, id: u64, params: &[f32], garment: &mut [Vec3]) {
+        let add = |d: &[Vec3], garment: &mut [Vec3]| {
+            for (m, d) in garment.iter_mut().zip(d) {
+                *m += *d;
+            }
+        };
+        match self.held_out.get(&id) {
+            Some(d) => add(d, garment),
+            None => add(
+                &self.model.displacement(&features_from_params(params)),
+                garment,
+            ),
         }
     }
 
@@ -343,21 +352,7 @@ impl Prior {
             || LearnError::Mismatch("the linear prior's normal equations cannot be solved".into());
         let (model, tried) = match lambda {
             Some(l) => (total.solve(l).ok_or_else(unsolvable)?, Vec::new()),
-            None => {
-                let validation: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = data
-                    .samples(Split::Val)
-                    .map(|s| {
-                        s.map(|s| {
-                            (
-                                features(&s.row.shape, &s.row.pose),
-                                s.row.warped,
-                                s.row.draped,
-                            )
-                        })
-                    })
-                    .collect::<Result<_, _>>()?;
-                fit(&total, &validation).ok_or_else(unsolvable)?
-            }
+            None => fit_on_validation(&total, data)?.ok_or_else(unsolvable)?,
         };
         let fold_models: Vec<Option<Linear>> = folds
             .iter()
@@ -382,13 +377,30 @@ impl Prior {
     }
 }
 
+/// A fitted model and, per strength tried, its validation Edist (cm).
+pub type Fitted = (Linear, Vec<(f64, f64)>);
+
+/// [`fit`] with `data`'s validation split (read here, one shard at a time).
+pub fn fit_on_validation(
+    sums: &Accumulator,
+    data: &Dataset,
+) -> Result<Option<Fitted>, dataset::DatasetError> {
+    let validation: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = data
+        .samples(Split::Val)
+        .map(|s| {
+            s.map(|s| {
+                let r = s.row;
+                (features(&r.shape, &r.pose), r.warped, r.draped)
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(fit(sums, &validation))
+}
+
 /// Fits for every strength of [`LAMBDAS`] and keeps the one with the lowest mean Edist on
 /// `validation` (features, warped, simulated); [`DEFAULT_LAMBDA`] without validation
 /// samples. Returns the model and, per strength tried, its validation Edist (cm).
-pub fn fit(
-    sums: &Accumulator,
-    validation: &[(Vec<f64>, Vec<Vec3>, Vec<Vec3>)],
-) -> Option<(Linear, Vec<(f64, f64)>)> {
+pub fn fit(sums: &Accumulator, validation: &[(Vec<f64>, Vec<Vec3>, Vec<Vec3>)]) -> Option<Fitted> {
     if validation.is_empty() {
         return sums.solve(DEFAULT_LAMBDA).map(|m| (m, Vec::new()));
     }

@@ -2,6 +2,7 @@
 //! ([`Predictor::predict`]) is what `drape predict` and the evaluation call.
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use burn::tensor::Device;
@@ -9,8 +10,6 @@ use dataset::shard::{Row, Static};
 use glam::Vec3;
 
 use crate::LearnError;
-use std::sync::Arc;
-
 use crate::config::{PriorKind, TrainConfig};
 use crate::data::{Prepared, Preprocessor, collate, row_params};
 use crate::linear::{Linear, Prior};
