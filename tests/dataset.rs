@@ -623,6 +623,69 @@ fn a_micrometre_disturbance_barely_moves_a_drape() {
     }
 }
 
+/// `drape data curve`: one point per share of the training bodies, with the drapes of the
+/// bodies it keeps; bad shares and the training split are refused.
+#[test]
+fn the_learning_curve_fits_on_shares_of_the_training_bodies() {
+    let (t, dir) = reference();
+    let json = t.path().join("curve.json");
+    let (ok, text) = run(drape()
+        .args(["data", "curve"])
+        .arg(dir)
+        .args(["--shares", "0.5,1", "--json"])
+        .arg(&json));
+    assert!(ok, "{text}");
+    assert!(text.contains("linear + kernel"), "{text}");
+    let c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(c["dataset"], "tiny");
+    assert_eq!(c["split"], "test");
+    let data = dataset::reader::Dataset::open(dir).unwrap();
+    let train = data.count(dataset::config::Split::Train) as u64;
+    assert_eq!(c["held_out"], data.count(dataset::config::Split::Test) as u64);
+    let dqs = c["dqs_cm"].as_f64().unwrap();
+    assert!(dqs > 1.0, "DQS Edist {dqs} cm");
+    let points = c["points"].as_array().unwrap();
+    assert_eq!(points.len(), 2);
+    // tiny: 2 training bodies of 2 poses; half of them is the first body.
+    assert_eq!(points[0]["bodies"], 1);
+    assert_eq!(points[1]["bodies"], 2);
+    assert_eq!(points[1]["drapes"], train);
+    assert!(points[0]["drapes"].as_u64().unwrap() <= 2);
+    // A map fitted on one body's drapes fits them far better than another body's (measured:
+    // 1.6 against 11.8 cm; the 288 features extrapolate wildly from 2 drapes).
+    let (fit, held) = (
+        points[0]["linear_train_cm"].as_f64().unwrap(),
+        points[0]["linear_cm"].as_f64().unwrap(),
+    );
+    assert!(fit < 0.5 * held, "{fit} {held}");
+    for p in points {
+        for k in ["linear_train_cm", "linear_cm", "kernel_cm"] {
+            let v = p[k].as_f64().unwrap();
+            assert!(v > 0.0 && v.is_finite(), "{k} = {v}: {p}");
+        }
+        let lambda = p["linear_lambda"].as_f64().unwrap();
+        assert!(learn::linear::LAMBDAS.contains(&lambda), "{p}");
+        assert!(eval::curve::KERNEL_WIDTHS.contains(&p["kernel_width"].as_f64().unwrap()));
+        assert!(eval::curve::KERNEL_LAMBDAS.contains(&p["kernel_lambda"].as_f64().unwrap()));
+    }
+    for (args, says) in [
+        (vec!["--shares", "0"], "(0, 1]"),
+        (vec!["--shares", "1.5"], "(0, 1]"),
+        (vec!["--split", "train"], "held-out"),
+    ] {
+        let out = t.path().join("refused-curve.json");
+        let (ok, text) = run(drape()
+            .args(["data", "curve"])
+            .arg(dir)
+            .args(&args)
+            .arg("--json")
+            .arg(&out));
+        assert!(!ok && text.contains(says), "{args:?}: {text}");
+        assert!(!out.exists(), "{args:?} wrote {}", out.display());
+    }
+}
+
 /// `drape data show`: one row per chosen sample, the printed DQS figure is the sample's
 /// Edist between warp and drape, bad choices are refused and write nothing.
 #[test]

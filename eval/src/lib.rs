@@ -11,10 +11,13 @@
 //! - [`speed`]: the speed-up of a network over the simulator (`drape bench speedup`).
 //! - [`sensitivity`]: how far drapes move under a micrometre disturbance of the
 //!   simulation (`drape data sensitivity`), the part of a target no input determines.
+//! - [`curve`]: how the linear map and a kernel map beside it improve with more training
+//!   drapes (`drape data curve`): what more data would buy.
 //! - [`repro`]: the reproduction plan, its stage ledger and `docs/reproduction.md`.
 //! - [`plot`]: line charts (the average-precision curves) and colour bars as images.
 #![warn(missing_docs)]
 
+pub mod curve;
 pub mod evaluate;
 pub mod exr;
 pub use learn::linear;

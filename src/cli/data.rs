@@ -1,4 +1,4 @@
-//! `drape gen` and `drape data info|show|verify|merge|sensitivity`.
+//! `drape gen` and `drape data info|show|verify|merge|sensitivity|curve`.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -94,6 +94,22 @@ pub enum DataCommand {
         /// The PNG to write (rows stacked, one per sample).
         #[arg(short, long, value_name = "FILE.png")]
         output: PathBuf,
+    },
+    /// What more training data would buy: fit the linear map (and a kernel map of what it
+    /// leaves) on the first 1/8, 1/4, 1/2 and all of the training bodies and print their
+    /// Edist on held-out drapes beside the DQS warp's (docs/eval.md)
+    Curve {
+        /// Dataset folder.
+        dir: PathBuf,
+        /// Held-out split measured: val or test (the strengths are picked on val).
+        #[arg(long, default_value = "test")]
+        split: String,
+        /// Shares of the training bodies (comma-separated, each in (0, 1]).
+        #[arg(long, value_delimiter = ',', default_value = "0.125,0.25,0.5,1")]
+        shares: Vec<f64>,
+        /// Also write the figures as JSON.
+        #[arg(long, value_name = "FILE.json")]
+        json: Option<PathBuf>,
     },
     /// How much of a drape no input determines: redrape samples with the starting template
     /// moved by micrometres and measure Edist to the dataset's drape (the floor under a
@@ -272,6 +288,36 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
 
 fn mb(b: u64) -> String {
     format!("{:.1} MB", b as f64 / 1e6)
+}
+
+/// Runs `drape data curve`.
+fn curve_run(dir: &Path, split: &str, shares: &[f64], json: Option<&Path>) -> anyhow::Result<()> {
+    let split = Split::parse(split)?;
+    let data = Dataset::open(dir)?;
+    let t0 = std::time::Instant::now();
+    let curve = eval::curve::measure(&data, split, shares, &mut |m| {
+        eprintln!("[{:>5.0} s] {m}", t0.elapsed().as_secs_f64())
+    })?;
+    println!(
+        "{}: Edist on {} {} drapes (DQS warp {:.2} cm); the maps trained on the first bodies of the training split",
+        curve.dataset, curve.held_out, curve.split, curve.dqs_cm
+    );
+    println!(
+        "{:>7} {:>7} {:>10} {:>15} {:>11} {:>19}",
+        "bodies", "drapes", "lambda", "linear, train", "linear", "linear + kernel"
+    );
+    for p in &curve.points {
+        println!(
+            "{:>7} {:>7} {:>10} {:>12.3} cm {:>8.3} cm {:>16.3} cm",
+            p.bodies, p.drapes, p.linear_lambda, p.linear_train_cm, p.linear_cm, p.kernel_cm
+        );
+    }
+    println!("({:.0} s)", t0.elapsed().as_secs_f64());
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&curve)? + "\n")
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    }
+    Ok(())
 }
 
 /// Runs `drape data sensitivity`.
@@ -483,6 +529,12 @@ fn show_run(dir: &Path, split: &str, picks: &[usize], output: &Path) -> anyhow::
 /// Runs `drape data`.
 pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
     match args.command {
+        DataCommand::Curve {
+            dir,
+            split,
+            shares,
+            json,
+        } => curve_run(&dir, &split, &shares, json.as_deref()),
         DataCommand::Sensitivity {
             dir,
             split,
