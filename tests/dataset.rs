@@ -642,7 +642,10 @@ fn the_learning_curve_fits_on_shares_of_the_training_bodies() {
     assert_eq!(c["split"], "test");
     let data = dataset::reader::Dataset::open(dir).unwrap();
     let train = data.count(dataset::config::Split::Train) as u64;
-    assert_eq!(c["held_out"], data.count(dataset::config::Split::Test) as u64);
+    assert_eq!(
+        c["held_out"],
+        data.count(dataset::config::Split::Test) as u64
+    );
     let dqs = c["dqs_cm"].as_f64().unwrap();
     assert!(dqs > 1.0, "DQS Edist {dqs} cm");
     let points = c["points"].as_array().unwrap();

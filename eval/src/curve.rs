@@ -93,7 +93,12 @@ struct Train {
 }
 
 fn edist_cm(p: &[Vec3], g: &[Vec3]) -> f64 {
-    p.iter().zip(g).map(|(a, b)| a.distance(*b) as f64).sum::<f64>() / g.len() as f64 * 100.0
+    p.iter()
+        .zip(g)
+        .map(|(a, b)| a.distance(*b) as f64)
+        .sum::<f64>()
+        / g.len() as f64
+        * 100.0
 }
 
 fn read(data: &Dataset, split: Split) -> Result<Vec<Held>, EvalError> {
@@ -251,7 +256,11 @@ pub fn measure(
         .into_iter()
         .collect();
     let n = data.statics.garment_vertices.len();
-    let dqs_cm = held.iter().map(|h| edist_cm(&h.warped, &h.draped)).sum::<f64>() / held.len() as f64;
+    let dqs_cm = held
+        .iter()
+        .map(|h| edist_cm(&h.warped, &h.draped))
+        .sum::<f64>()
+        / held.len() as f64;
     let mut points = Vec::new();
     for &share in shares {
         let count = ((bodies.len() as f64 * share).round() as usize).clamp(1, bodies.len());
