@@ -139,19 +139,28 @@ impl Standard {
     }
 }
 
-/// `exp(-gamma |a - b|^2)` for every pair, `[a.len(), b.len()]`.
-fn kernel(a: &[Vec<f64>], b: &[Vec<f64>], gamma: f64) -> DMatrix<f64> {
-    DMatrix::from_fn(a.len(), b.len(), |i, j| {
-        let d2: f64 = a[i].iter().zip(&b[j]).map(|(p, q)| (p - q).powi(2)).sum();
-        (-gamma * d2).exp()
-    })
+/// `|a_i - b_j|^2` for every pair, `[a.len(), b.len()]`, as `|a|^2 + |b|^2 - 2 a b^T` (one
+/// matrix product).
+pub fn squared_distances(a: &[Vec<f64>], b: &[Vec<f64>]) -> DMatrix<f64> {
+    let d = a.first().or(b.first()).map_or(0, |x| x.len());
+    let ma = DMatrix::from_fn(a.len(), d, |i, k| a[i][k]);
+    let mb = DMatrix::from_fn(b.len(), d, |i, k| b[i][k]);
+    let na: Vec<f64> = a.iter().map(|x| x.iter().map(|v| v * v).sum()).collect();
+    let nb: Vec<f64> = b.iter().map(|x| x.iter().map(|v| v * v).sum()).collect();
+    let mut m = ma * mb.transpose() * -2.0;
+    for j in 0..b.len() {
+        for i in 0..a.len() {
+            m[(i, j)] = (m[(i, j)] + na[i] + nb[j]).max(0.0);
+        }
+    }
+    m
 }
 
 /// RBF kernel ridge regression on standardised features: the prediction at `q` is
-/// `k(q, Z) (K + lambda I)^-1 R` for training features `Z` and targets `R`.
+/// `k(q, Z) (K + lambda I)^-1 R` for training features `Z` and targets `R`, with
+/// `k(a, b) = exp(-gamma |a - b|^2)` and `gamma = width / (2 d)`.
 #[derive(Debug)]
 pub struct KernelRidge {
-    z: Vec<Vec<f64>>,
     gamma: f64,
     chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
     /// The width factor `c` (`gamma = c / (2 d)`).
@@ -161,15 +170,20 @@ pub struct KernelRidge {
 }
 
 impl KernelRidge {
-    /// Factorises `K + lambda I` for training features `z` (standardised, `d` each);
-    /// `None` if it cannot be (no samples, or not positive definite).
-    pub fn fit(z: Vec<Vec<f64>>, width: f64, lambda: f64) -> Option<Self> {
-        let d = z.first()?.len().max(1) as f64;
-        let gamma = width / (2.0 * d);
-        let a = kernel(&z, &z, gamma) + DMatrix::<f64>::identity(z.len(), z.len()) * lambda;
+    /// Factorises `K + lambda I` from the training features' squared distances `sq`
+    /// ([`squared_distances`]) for `d` features; `None` if it cannot be (no samples, or not
+    /// positive definite).
+    pub fn fit(sq: &DMatrix<f64>, d: usize, width: f64, lambda: f64) -> Option<Self> {
+        if sq.nrows() == 0 {
+            return None;
+        }
+        let gamma = width / (2.0 * d.max(1) as f64);
+        let mut a = sq.map(|v| (-gamma * v).exp());
+        for i in 0..a.nrows() {
+            a[(i, i)] += lambda;
+        }
         let chol = a.cholesky()?;
         Some(Self {
-            z,
             gamma,
             chol,
             width,
@@ -177,14 +191,13 @@ impl KernelRidge {
         })
     }
 
-    /// Predictions at `queries` for training targets `targets` (`[training samples,
-    /// outputs]`), `[queries, outputs]`. Solved as `((K + lambda I)^-1 k(Z, q))^T R`: one
-    /// right-hand side per query, not per output.
-    pub fn predict(&self, queries: &[Vec<f64>], targets: &DMatrix<f64>) -> DMatrix<f64> {
-        self.chol
-            .solve(&kernel(&self.z, queries, self.gamma))
-            .transpose()
-            * targets
+    /// Predictions at the queries whose squared distances to the training features are
+    /// `sq` (`[training samples, queries]`), for training targets `targets` (`[training
+    /// samples, outputs]`): `[queries, outputs]`. Solved as `((K + lambda I)^-1 k(Z,
+    /// q))^T R`: one right-hand side per query, not per output.
+    pub fn predict(&self, sq: &DMatrix<f64>, targets: &DMatrix<f64>) -> DMatrix<f64> {
+        let k = sq.map(|v| (-self.gamma * v).exp());
+        self.chol.solve(&k).transpose() * targets
     }
 }
 
@@ -313,23 +326,29 @@ pub fn measure(
         let z: Vec<Vec<f64>> = xs.iter().map(|x| st.apply(x)).collect();
         let zv: Vec<Vec<f64>> = validation.iter().map(|h| st.apply(&h.x)).collect();
         let zh: Vec<Vec<f64>> = held.iter().map(|h| st.apply(&h.x)).collect();
-        let mut best: Option<(f64, f64, f64)> = None; // validation cm, width, lambda
+        let d = st.keep.len();
+        let (sq, sqv, sqh) = (
+            squared_distances(&z, &z),
+            squared_distances(&z, &zv),
+            squared_distances(&z, &zh),
+        );
+        let mut best: Option<(f64, KernelRidge)> = None; // validation cm
         for &c in &KERNEL_WIDTHS {
             for &lk in &KERNEL_LAMBDAS {
                 progress(&format!("{count} bodies: kernel width {c}, strength {lk}"));
-                let Some(k) = KernelRidge::fit(z.clone(), c, lk) else {
+                let Some(k) = KernelRidge::fit(&sq, d, c, lk) else {
                     continue;
                 };
-                let cm = edist_with(&validation, &val_base, &k.predict(&zv, &residual));
-                if best.is_none_or(|(b, _, _)| cm < b) {
-                    best = Some((cm, c, lk));
+                let cm = edist_with(&validation, &val_base, &k.predict(&sqv, &residual));
+                if best.as_ref().is_none_or(|(b, _)| cm < *b) {
+                    best = Some((cm, k));
                 }
             }
         }
-        let Some(k) = best.and_then(|(_, c, lk)| KernelRidge::fit(z, c, lk)) else {
+        let Some((_, k)) = best else {
             return bad("the kernel system cannot be solved".into());
         };
-        let kernel_cm = edist_with(&held, &held_base, &k.predict(&zh, &residual));
+        let kernel_cm = edist_with(&held, &held_base, &k.predict(&sqh, &residual));
         let (width, lk) = (k.width, k.lambda);
         points.push(CurvePoint {
             share,
@@ -375,8 +394,8 @@ mod tests {
         let z = grid(15, 0.0);
         let targets = DMatrix::from_fn(z.len(), 2, |i, o| f(&z[i]) * (1.0 + o as f64));
         let held = grid(10, 0.5);
-        let k = KernelRidge::fit(z, 2.0, 1e-3).unwrap();
-        let p = k.predict(&held, &targets);
+        let k = KernelRidge::fit(&squared_distances(&z, &z), 2, 2.0, 1e-3).unwrap();
+        let p = k.predict(&squared_distances(&z, &held), &targets);
         assert_eq!((p.nrows(), p.ncols()), (100, 2));
         // Function values span about +-2.1; the interpolation is within 0.05 of them on
         // held-out points inside the grid (the border extrapolates).
@@ -394,10 +413,28 @@ mod tests {
     fn a_strong_kernel_ridge_predicts_zero() {
         let z = grid(5, 0.0);
         let targets = DMatrix::from_fn(z.len(), 1, |i, _| f(&z[i]));
-        let k = KernelRidge::fit(z, 1.0, 1e9).unwrap();
-        let p = k.predict(&grid(3, 0.5), &targets);
+        let k = KernelRidge::fit(&squared_distances(&z, &z), 2, 1.0, 1e9).unwrap();
+        let p = k.predict(&squared_distances(&z, &grid(3, 0.5)), &targets);
         assert!(p.iter().all(|v| v.abs() < 1e-6), "{p}");
-        assert!(KernelRidge::fit(Vec::new(), 1.0, 0.1).is_none());
+        assert!(KernelRidge::fit(&DMatrix::zeros(0, 0), 2, 1.0, 0.1).is_none());
+    }
+
+    #[test]
+    fn squared_distances_are_those_of_the_pairs() {
+        let a = vec![vec![0.0, 0.0], vec![1.0, 2.0]];
+        let b = vec![vec![3.0, 4.0], vec![1.0, 2.0], vec![-1.0, 0.5]];
+        let m = squared_distances(&a, &b);
+        assert_eq!((m.nrows(), m.ncols()), (2, 3));
+        for (i, p) in a.iter().enumerate() {
+            for (j, q) in b.iter().enumerate() {
+                let want: f64 = p.iter().zip(q).map(|(x, y)| (x - y).powi(2)).sum();
+                assert!(
+                    (m[(i, j)] - want).abs() < 1e-12,
+                    "{i} {j}: {} {want}",
+                    m[(i, j)]
+                );
+            }
+        }
     }
 
     #[test]
