@@ -640,12 +640,9 @@ fn the_learning_curve_fits_on_shares_of_the_training_bodies() {
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(c["dataset"], "tiny");
     assert_eq!(c["split"], "test");
-    let data = dataset::reader::Dataset::open(dir).unwrap();
-    let train = data.count(dataset::config::Split::Train) as u64;
-    assert_eq!(
-        c["held_out"],
-        data.count(dataset::config::Split::Test) as u64
-    );
+    let data = Dataset::open(dir).unwrap();
+    let train = data.count(Split::Train) as u64;
+    assert_eq!(c["held_out"], data.count(Split::Test) as u64);
     let dqs = c["dqs_cm"].as_f64().unwrap();
     assert!(dqs > 1.0, "DQS Edist {dqs} cm");
     let points = c["points"].as_array().unwrap();
