@@ -33,7 +33,7 @@ use crate::evaluate::EvalError;
 pub const KERNEL_WIDTHS: [f64; 3] = [0.5, 1.0, 2.0];
 
 /// Kernel ridge strengths tried (the kernel's diagonal is 1).
-pub const KERNEL_LAMBDAS: [f64; 3] = [0.03, 0.1, 0.3];
+pub const KERNEL_LAMBDAS: [f64; 4] = [0.01, 0.03, 0.1, 0.3];
 
 /// The default shares of the training bodies.
 pub const DEFAULT_SHARES: [f64; 4] = [0.125, 0.25, 0.5, 1.0];
