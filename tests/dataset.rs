@@ -633,9 +633,13 @@ fn the_learning_curve_fits_on_shares_of_the_training_bodies() {
         .args(["data", "curve"])
         .arg(dir)
         .args(["--shares", "0.5,1", "--json"])
-        .arg(&json));
+        .arg(&json)
+        .arg("--png")
+        .arg(t.path().join("curve.png")));
     assert!(ok, "{text}");
     assert!(text.contains("linear + kernel"), "{text}");
+    let img = std::fs::read(t.path().join("curve.png")).unwrap();
+    assert_eq!(&img[1..4], b"PNG");
     let c: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(c["dataset"], "tiny");

@@ -372,6 +372,46 @@ pub fn measure(
     })
 }
 
+/// The curve as a chart: Edist against log2 of the training drapes, the linear map on its
+/// training drapes and held out, the kernel map held out, and the 1 cm line.
+pub fn chart(c: &Curve) -> crate::plot::Chart {
+    use crate::plot::{Chart, PALETTE, Series};
+    let x = |p: &CurvePoint| (p.drapes.max(1) as f64).log2();
+    let line = |label: &str, k: usize, f: &dyn Fn(&CurvePoint) -> f64| Series {
+        label: label.to_string(),
+        points: c.points.iter().map(|p| (x(p), f(p))).collect(),
+        colour: PALETTE[k],
+    };
+    let xs: Vec<f64> = c.points.iter().map(x).collect();
+    let (x0, x1) = (
+        xs.iter().cloned().fold(f64::MAX, f64::min).floor(),
+        xs.iter().cloned().fold(f64::MIN, f64::max).ceil(),
+    );
+    let x1 = if x1 > x0 { x1 } else { x0 + 1.0 };
+    let ys = c
+        .points
+        .iter()
+        .flat_map(|p| [p.linear_train_cm, p.linear_cm, p.kernel_cm]);
+    let (lo, hi) = ys.fold((1.0f64, 1.0f64), |(a, b), y| (a.min(y), b.max(y)));
+    Chart {
+        title: format!("{}: Edist on {} {} drapes", c.dataset, c.held_out, c.split),
+        x_label: "log2 of the training drapes (10 = 1,024; 12 = 4,096)".into(),
+        y_label: "Edist (cm)".into(),
+        x_range: (x0, x1),
+        y_range: ((lo * 10.0).floor() / 10.0, (hi * 10.0).ceil() / 10.0),
+        series: vec![
+            line("linear, held out", 0, &|p| p.linear_cm),
+            line("linear, its training drapes", 2, &|p| p.linear_train_cm),
+            line("linear + kernel, held out", 1, &|p| p.kernel_cm),
+            Series {
+                label: "1 cm".into(),
+                points: vec![(x0, 1.0), (x1, 1.0)],
+                colour: [150, 150, 150],
+            },
+        ],
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

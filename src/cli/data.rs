@@ -110,6 +110,9 @@ pub enum DataCommand {
         /// Also write the figures as JSON.
         #[arg(long, value_name = "FILE.json")]
         json: Option<PathBuf>,
+        /// Also draw the curve (Edist against log2 of the training drapes) to this PNG.
+        #[arg(long, value_name = "FILE.png")]
+        png: Option<PathBuf>,
     },
     /// How much of a drape no input determines: redrape samples with the starting template
     /// moved by micrometres and measure Edist to the dataset's drape (the floor under a
@@ -291,7 +294,13 @@ fn mb(b: u64) -> String {
 }
 
 /// Runs `drape data curve`.
-fn curve_run(dir: &Path, split: &str, shares: &[f64], json: Option<&Path>) -> anyhow::Result<()> {
+fn curve_run(
+    dir: &Path,
+    split: &str,
+    shares: &[f64],
+    json: Option<&Path>,
+    png: Option<&Path>,
+) -> anyhow::Result<()> {
     let split = Split::parse(split)?;
     let data = Dataset::open(dir)?;
     let t0 = std::time::Instant::now();
@@ -315,6 +324,11 @@ fn curve_run(dir: &Path, split: &str, shares: &[f64], json: Option<&Path>) -> an
     println!("({:.0} s)", t0.elapsed().as_secs_f64());
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(&curve)? + "\n")
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    }
+    if let Some(path) = png {
+        let img = eval::plot::line_chart(&eval::curve::chart(&curve), 760, 480);
+        std::fs::write(path, eval::render::encode_png(&img)?)
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
     }
     Ok(())
@@ -534,7 +548,8 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
             split,
             shares,
             json,
-        } => curve_run(&dir, &split, &shares, json.as_deref()),
+            png,
+        } => curve_run(&dir, &split, &shares, json.as_deref(), png.as_deref()),
         DataCommand::Sensitivity {
             dir,
             split,
