@@ -676,7 +676,7 @@ fn the_learning_curve_fits_on_shares_of_the_training_bodies() {
     for (args, says) in [
         (vec!["--shares", "0"], "(0, 1]"),
         (vec!["--shares", "1.5"], "(0, 1]"),
-        (vec!["--split", "train"], "held-out"),
+        (vec!["--split", "val"], "--split"),
     ] {
         let out = t.path().join("refused-curve.json");
         let (ok, text) = run(drape()

@@ -3,7 +3,7 @@
 //!
 //! For each share of the training bodies (the first bodies by index, all their drapes) two
 //! maps from the sample's shape and pose to the displacement `G - M` are fitted and
-//! measured on a held-out split:
+//! measured on the test split (the validation split picks their strengths):
 //!
 //! - the linear map of `drape eval` ([`learn::linear`]: ridge regression on the shape and
 //!   the bones' rotation matrices, its strength picked on the validation split);
@@ -68,7 +68,7 @@ pub struct Curve {
     pub dataset: String,
     /// See `dataset`.
     pub manifest_sha256: String,
-    /// The held-out split measured.
+    /// The split measured (test).
     pub split: String,
     /// Its drapes.
     pub held_out: usize,
@@ -224,10 +224,10 @@ fn edist_with(held: &[Held], base: &[Vec<Vec3>], correction: &DMatrix<f64>) -> f
 }
 
 /// Measures the curve on `data`: training on the first `shares` of its training bodies,
-/// picking on its validation split, measuring on `split`. `progress` gets a line per step.
+/// picking on its validation split, measuring on its test split. `progress` gets a line per
+/// step.
 pub fn measure(
     data: &Dataset,
-    split: Split,
     shares: &[f64],
     progress: &mut dyn FnMut(&str),
 ) -> Result<Curve, EvalError> {
@@ -235,9 +235,7 @@ pub fn measure(
     if shares.is_empty() || shares.iter().any(|s| !(*s > 0.0 && *s <= 1.0)) {
         return bad(format!("shares must lie in (0, 1]: {shares:?}"));
     }
-    if split == Split::Train {
-        return bad("the curve is measured on held-out drapes: --split val or test".into());
-    }
+    let split = Split::Test;
     progress("reading the training split");
     let train: Vec<Train> = data
         .samples(Split::Train)
@@ -274,6 +272,10 @@ pub fn measure(
         .map(|h| edist_cm(&h.warped, &h.draped))
         .sum::<f64>()
         / held.len() as f64;
+    let val_rows: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = validation
+        .iter()
+        .map(|h| (h.x.clone(), h.warped.clone(), h.draped.clone()))
+        .collect();
     let mut points = Vec::new();
     for &share in shares {
         let count = ((bodies.len() as f64 * share).round() as usize).clamp(1, bodies.len());
@@ -287,10 +289,6 @@ pub fn measure(
         for t in &used {
             sums.add(&t.x, &t.d);
         }
-        let val_rows: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = validation
-            .iter()
-            .map(|h| (h.x.clone(), h.warped.clone(), h.draped.clone()))
-            .collect();
         let Some((linear, _)) = learn::linear::fit(&sums, &val_rows) else {
             return bad("the linear map's normal equations cannot be solved".into());
         };

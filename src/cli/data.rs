@@ -96,14 +96,12 @@ pub enum DataCommand {
         output: PathBuf,
     },
     /// What more training data would buy: fit the linear map (and a kernel map of what it
-    /// leaves) on the first 1/8, 1/4, 1/2 and all of the training bodies and print their
-    /// Edist on held-out drapes beside the DQS warp's (docs/eval.md)
+    /// leaves) on the first 1/8, 1/4, 1/2 and all of the training bodies, their strengths
+    /// picked on the validation split, and print their Edist on the test drapes beside the
+    /// DQS warp's (docs/eval.md)
     Curve {
         /// Dataset folder.
         dir: PathBuf,
-        /// Held-out split measured: val or test (the strengths are picked on val).
-        #[arg(long, default_value = "test")]
-        split: String,
         /// Shares of the training bodies (comma-separated, each in (0, 1]).
         #[arg(long, value_delimiter = ',', default_value = "0.125,0.25,0.5,1")]
         shares: Vec<f64>,
@@ -296,15 +294,13 @@ fn mb(b: u64) -> String {
 /// Runs `drape data curve`.
 fn curve_run(
     dir: &Path,
-    split: &str,
     shares: &[f64],
     json: Option<&Path>,
     png: Option<&Path>,
 ) -> anyhow::Result<()> {
-    let split = Split::parse(split)?;
     let data = Dataset::open(dir)?;
     let t0 = std::time::Instant::now();
-    let curve = eval::curve::measure(&data, split, shares, &mut |m| {
+    let curve = eval::curve::measure(&data, shares, &mut |m| {
         eprintln!("[{:>5.0} s] {m}", t0.elapsed().as_secs_f64())
     })?;
     println!(
@@ -312,13 +308,19 @@ fn curve_run(
         curve.dataset, curve.held_out, curve.split, curve.dqs_cm
     );
     println!(
-        "{:>7} {:>7} {:>10} {:>15} {:>11} {:>19}",
-        "bodies", "drapes", "lambda", "linear, train", "linear", "linear + kernel"
+        "{:>7} {:>7} {:>10} {:>15} {:>11} {:>19} {:>14}",
+        "bodies", "drapes", "lambda", "linear, train", "linear", "linear + kernel", "kernel c, l"
     );
     for p in &curve.points {
         println!(
-            "{:>7} {:>7} {:>10} {:>12.3} cm {:>8.3} cm {:>16.3} cm",
-            p.bodies, p.drapes, p.linear_lambda, p.linear_train_cm, p.linear_cm, p.kernel_cm
+            "{:>7} {:>7} {:>10} {:>12.3} cm {:>8.3} cm {:>16.3} cm {:>14}",
+            p.bodies,
+            p.drapes,
+            p.linear_lambda,
+            p.linear_train_cm,
+            p.linear_cm,
+            p.kernel_cm,
+            format!("{}, {}", p.kernel_width, p.kernel_lambda)
         );
     }
     println!("({:.0} s)", t0.elapsed().as_secs_f64());
@@ -545,11 +547,10 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
     match args.command {
         DataCommand::Curve {
             dir,
-            split,
             shares,
             json,
             png,
-        } => curve_run(&dir, &split, &shares, json.as_deref(), png.as_deref()),
+        } => curve_run(&dir, &shares, json.as_deref(), png.as_deref()),
         DataCommand::Sensitivity {
             dir,
             split,
