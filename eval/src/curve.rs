@@ -21,11 +21,12 @@ use std::collections::BTreeSet;
 use dataset::config::Split;
 use dataset::reader::Dataset;
 use glam::Vec3;
-use learn::linear::{Accumulator, Linear, features};
+use learn::linear::{Accumulator, Labelled, Linear, features, read_split};
 use nalgebra::DMatrix;
 use serde::Serialize;
 
 use crate::evaluate::EvalError;
+use crate::metrics::{edist_cm, mean};
 
 /// Kernel widths tried: `gamma = c / (2 d)` for these `c` (`d` the number of non-constant
 /// features; `c = 1` weighs a typical squared distance between two samples' standardised
@@ -34,9 +35,6 @@ pub const KERNEL_WIDTHS: [f64; 3] = [0.5, 1.0, 2.0];
 
 /// Kernel ridge strengths tried (the kernel's diagonal is 1).
 pub const KERNEL_LAMBDAS: [f64; 4] = [0.01, 0.03, 0.1, 0.3];
-
-/// The default shares of the training bodies.
-pub const DEFAULT_SHARES: [f64; 4] = [0.125, 0.25, 0.5, 1.0];
 
 /// One point of the curve.
 #[derive(Debug, Clone, Serialize)]
@@ -78,40 +76,11 @@ pub struct Curve {
     pub points: Vec<CurvePoint>,
 }
 
-/// A sample in memory: features, warped M, simulated G.
-struct Held {
-    x: Vec<f64>,
-    warped: Vec<Vec3>,
-    draped: Vec<Vec3>,
-}
-
 /// A training sample in memory: its body, features and displacement `G - M`.
 struct Train {
     body: u64,
     x: Vec<f64>,
     d: Vec<Vec3>,
-}
-
-fn edist_cm(p: &[Vec3], g: &[Vec3]) -> f64 {
-    p.iter()
-        .zip(g)
-        .map(|(a, b)| a.distance(*b) as f64)
-        .sum::<f64>()
-        / g.len() as f64
-        * 100.0
-}
-
-fn read(data: &Dataset, split: Split) -> Result<Vec<Held>, EvalError> {
-    data.samples(split)
-        .map(|s| {
-            let r = s?.row;
-            Ok(Held {
-                x: features(&r.shape, &r.pose),
-                warped: r.warped,
-                draped: r.draped,
-            })
-        })
-        .collect()
 }
 
 /// Standardisation of the training features: mean and 1 / deviation of each
@@ -201,26 +170,22 @@ impl KernelRidge {
     }
 }
 
-/// Mean Edist (cm) of `base + correction rows` against the held samples' drapes.
-fn edist_with(held: &[Held], base: &[Vec<Vec3>], correction: &DMatrix<f64>) -> f64 {
-    held.iter()
-        .enumerate()
-        .map(|(i, h)| {
-            let p: Vec<Vec3> = base[i]
-                .iter()
-                .enumerate()
-                .map(|(v, b)| {
-                    *b + Vec3::new(
-                        correction[(i, 3 * v)] as f32,
-                        correction[(i, 3 * v + 1)] as f32,
-                        correction[(i, 3 * v + 2)] as f32,
-                    )
-                })
-                .collect();
-            edist_cm(&p, &h.draped)
-        })
-        .sum::<f64>()
-        / held.len() as f64
+/// Mean Edist (cm) of `base + correction rows` against the samples' drapes.
+fn edist_with(samples: &[Labelled], base: &[Vec<Vec3>], correction: &DMatrix<f64>) -> f64 {
+    mean(samples.iter().enumerate().map(|(i, (_, _, g))| {
+        let p: Vec<Vec3> = base[i]
+            .iter()
+            .enumerate()
+            .map(|(v, b)| {
+                *b + Vec3::new(
+                    correction[(i, 3 * v)] as f32,
+                    correction[(i, 3 * v + 1)] as f32,
+                    correction[(i, 3 * v + 2)] as f32,
+                )
+            })
+            .collect();
+        edist_cm(&p, g)
+    }))
 }
 
 /// Measures the curve on `data`: training on the first `shares` of its training bodies,
@@ -248,8 +213,8 @@ pub fn measure(
             })
         })
         .collect::<Result<_, EvalError>>()?;
-    let validation = read(data, Split::Val)?;
-    let held = read(data, split)?;
+    let validation = read_split(data, Split::Val)?;
+    let held = read_split(data, split)?;
     if train.is_empty() || validation.is_empty() || held.is_empty() {
         return bad(format!(
             "{} needs training, validation and {} drapes (it has {}, {} and {})",
@@ -267,15 +232,7 @@ pub fn measure(
         .into_iter()
         .collect();
     let n = data.statics.garment_vertices.len();
-    let dqs_cm = held
-        .iter()
-        .map(|h| edist_cm(&h.warped, &h.draped))
-        .sum::<f64>()
-        / held.len() as f64;
-    let val_rows: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = validation
-        .iter()
-        .map(|h| (h.x.clone(), h.warped.clone(), h.draped.clone()))
-        .collect();
+    let dqs_cm = mean(held.iter().map(|(_, m, g)| edist_cm(m, g)));
     let mut points = Vec::new();
     for &share in shares {
         let count = ((bodies.len() as f64 * share).round() as usize).clamp(1, bodies.len());
@@ -289,7 +246,7 @@ pub fn measure(
         for t in &used {
             sums.add(&t.x, &t.d);
         }
-        let Some((linear, _)) = learn::linear::fit(&sums, &val_rows) else {
+        let Some((linear, _)) = learn::linear::fit(&sums, &validation) else {
             return bad("the linear map's normal equations cannot be solved".into());
         };
         // Residual of the linear fit on its own training drapes, [drapes, 3N].
@@ -308,22 +265,21 @@ pub fn measure(
             train_cm += err / n as f64 * 100.0;
         }
         train_cm /= used.len() as f64;
-        let base = |h: &[Held], m: &Linear| -> Vec<Vec<Vec3>> {
-            h.iter().map(|h| m.predict(&h.x, &h.warped)).collect()
+        let base = |h: &[Labelled], m: &Linear| -> Vec<Vec<Vec3>> {
+            h.iter().map(|(x, w, _)| m.predict(x, w)).collect()
         };
         let (val_base, held_base) = (base(&validation, &linear), base(&held, &linear));
-        let linear_cm = held
-            .iter()
-            .zip(&held_base)
-            .map(|(h, p)| edist_cm(p, &h.draped))
-            .sum::<f64>()
-            / held.len() as f64;
+        let linear_cm = mean(
+            held.iter()
+                .zip(&held_base)
+                .map(|((_, _, g), p)| edist_cm(p, g)),
+        );
         // The kernel on the standardised features.
         let xs: Vec<&[f64]> = used.iter().map(|t| t.x.as_slice()).collect();
         let st = Standard::new(&xs);
         let z: Vec<Vec<f64>> = xs.iter().map(|x| st.apply(x)).collect();
-        let zv: Vec<Vec<f64>> = validation.iter().map(|h| st.apply(&h.x)).collect();
-        let zh: Vec<Vec<f64>> = held.iter().map(|h| st.apply(&h.x)).collect();
+        let zv: Vec<Vec<f64>> = validation.iter().map(|(x, _, _)| st.apply(x)).collect();
+        let zh: Vec<Vec<f64>> = held.iter().map(|(x, _, _)| st.apply(x)).collect();
         let d = st.keep.len();
         let (sq, sqv, sqh) = (
             squared_distances(&z, &z),
@@ -347,7 +303,6 @@ pub fn measure(
             return bad("the kernel system cannot be solved".into());
         };
         let kernel_cm = edist_with(&held, &held_base, &k.predict(&sqh, &residual));
-        let (width, lk) = (k.width, k.lambda);
         points.push(CurvePoint {
             share,
             bodies: count,
@@ -355,8 +310,8 @@ pub fn measure(
             linear_lambda: linear.lambda,
             linear_train_cm: train_cm,
             linear_cm,
-            kernel_width: width,
-            kernel_lambda: lk,
+            kernel_width: k.width,
+            kernel_lambda: k.lambda,
             kernel_cm,
         });
     }

@@ -380,27 +380,33 @@ impl Prior {
 /// A fitted model and, per strength tried, its validation Edist (cm).
 pub type Fitted = (Linear, Vec<(f64, f64)>);
 
-/// [`fit`] with `data`'s validation split (read here, one shard at a time).
-pub fn fit_on_validation(
-    sums: &Accumulator,
-    data: &Dataset,
-) -> Result<Option<Fitted>, dataset::DatasetError> {
-    let validation: Vec<(Vec<f64>, Vec<Vec3>, Vec<Vec3>)> = data
-        .samples(Split::Val)
+/// A sample as the fits measure it: its features, warped garment M and simulated G.
+pub type Labelled = (Vec<f64>, Vec<Vec3>, Vec<Vec3>);
+
+/// Every sample of `split` as [`Labelled`] (read one shard at a time).
+pub fn read_split(data: &Dataset, split: Split) -> Result<Vec<Labelled>, dataset::DatasetError> {
+    data.samples(split)
         .map(|s| {
             s.map(|s| {
                 let r = s.row;
                 (features(&r.shape, &r.pose), r.warped, r.draped)
             })
         })
-        .collect::<Result<_, _>>()?;
-    Ok(fit(sums, &validation))
+        .collect()
+}
+
+/// [`fit`] with `data`'s validation split.
+pub fn fit_on_validation(
+    sums: &Accumulator,
+    data: &Dataset,
+) -> Result<Option<Fitted>, dataset::DatasetError> {
+    Ok(fit(sums, &read_split(data, Split::Val)?))
 }
 
 /// Fits for every strength of [`LAMBDAS`] and keeps the one with the lowest mean Edist on
 /// `validation` (features, warped, simulated); [`DEFAULT_LAMBDA`] without validation
 /// samples. Returns the model and, per strength tried, its validation Edist (cm).
-pub fn fit(sums: &Accumulator, validation: &[(Vec<f64>, Vec<Vec3>, Vec<Vec3>)]) -> Option<Fitted> {
+pub fn fit(sums: &Accumulator, validation: &[Labelled]) -> Option<Fitted> {
     if validation.is_empty() {
         return sums.solve(DEFAULT_LAMBDA).map(|m| (m, Vec::new()));
     }
