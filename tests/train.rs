@@ -308,6 +308,13 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     assert!(got("linear").is_finite() && got("linear") > 0.0);
     let lambda = m["linear_lambda"].as_f64().unwrap();
     assert!(eval::linear::LAMBDAS.contains(&lambda), "{lambda}");
+    // The kernel baseline: finite, its width and strength among those tried.
+    assert!(got("kernel").is_finite() && got("kernel") > 0.0);
+    let (c, l) = (
+        m["kernel"]["width"].as_f64().unwrap(),
+        m["kernel"]["lambda"].as_f64().unwrap(),
+    );
+    assert!(learn::kernel::WIDTHS.contains(&c) && learn::kernel::LAMBDAS.contains(&l));
     // The curves rise from 0 to at most 1.
     for (kind, top) in [("distance_cm", 3.0), ("angle_deg", 45.0)] {
         let c = m["curves"][kind]["network"].as_array().unwrap();
@@ -429,30 +436,46 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     assert!(!ok && text.contains("epochs"), "{text}");
 }
 
-/// `model.prior = "linear"`: the run fits the prior on the training split, keeps it in
-/// `prior.safetensors`, and the network's input garment is M plus that prior's
+/// `model.prior = "linear"` and `"kernel"`: the run fits the prior on the training split,
+/// keeps it in `prior.safetensors`, and the network's input garment is M plus that prior's
 /// displacement (cross-fitted for training samples, the full fit elsewhere); a run folder
 /// without its prior is refused.
 #[test]
 fn linear_prior_run() {
-    use learn::linear::{Linear, Prior, features_from_params};
+    prior_run(learn::config::PriorKind::Linear);
+}
+
+/// See [`linear_prior_run`].
+#[test]
+fn kernel_prior_run() {
+    prior_run(learn::config::PriorKind::Kernel);
+}
+
+fn prior_run(kind: learn::config::PriorKind) {
+    use learn::linear::features_from_params;
+    use learn::prior::{Prior, PriorMap};
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&data));
     assert!(ok, "{text}");
     let run_dir = tmp.path().join("run");
-    let cfg = config(tmp.path(), 2, "local", "\nprior = \"linear\"");
+    let name = kind.name();
+    let cfg = config(tmp.path(), 2, "local", &format!("\nprior = \"{name}\""));
     let (ok, text) = train(&cfg, &data, &run_dir, &[]);
-    assert!(ok && text.contains("linear prior:"), "{text}");
+    assert!(ok && text.contains(&format!("{name} prior:")), "{text}");
     let saved = std::fs::read_to_string(run_dir.join("config.toml")).unwrap();
-    assert!(saved.contains("prior = \"linear\""), "{saved}");
+    assert!(saved.contains(&format!("prior = \"{name}\"")), "{saved}");
 
     let d = dataset::reader::Dataset::open(&data).unwrap();
-    let file = Linear::load(&run_dir.join("prior.safetensors")).unwrap();
+    let file = PriorMap::load(&run_dir.join("prior.safetensors"), kind).unwrap();
     assert_eq!(file.vertices(), d.statics.garment_vertices.len());
     // The fit the run kept is the one made again from the data (it is deterministic).
-    let fit = Prior::fit(&d, None, None, false).unwrap();
-    assert_eq!(fit.model.lambda, file.lambda);
+    let fit = Prior::fit(&d, None, kind, false).unwrap();
+    assert_eq!(fit.model.describe(), file.describe());
+    assert_eq!(
+        matches!(file, PriorMap::Kernel(_)),
+        kind == learn::config::PriorKind::Kernel
+    );
     let net = learn::predict::Predictor::open(&run_dir, &d.statics).unwrap();
     let rows =
         |split| -> Vec<dataset::shard::Row> { d.samples(split).map(|s| s.unwrap().row).collect() };

@@ -1,4 +1,4 @@
-//! `drape eval`: a trained network and three baselines measured on a dataset split.
+//! `drape eval`: a trained network and five baselines measured on a dataset split.
 //!
 //! Methods, each a garment per test sample:
 //! - the network (`G^P = M + T^P`, [`learn::predict::Predictor`]);
@@ -9,6 +9,9 @@
 //! - **linear**: `M` plus a ridge regression of the displacement on the shape and the bone
 //!   rotation matrices, fitted on the training split, its strength picked on the validation
 //!   split ([`crate::linear`]; on the training split itself it is an in-sample fit).
+//! - **kernel**: the linear baseline plus an RBF kernel ridge regression of what it leaves,
+//!   on the standardised shape and pose features, its width and strength picked on the
+//!   validation split ([`learn::kernel`]; in-sample on the training split too).
 //!
 //! Per sample and method: Edist, Enorm, L_MC and L_RQ^K, the physics energies and the
 //! interpenetration ratio; the simulator's own energies and interpenetration for reference;
@@ -22,6 +25,7 @@ use dataset::config::Split;
 use dataset::reader::{Dataset, Sample};
 use dataset::shard::Row;
 use glam::{Quat, Vec3};
+use learn::kernel::{Fit, Row as KernelRow};
 use learn::loss::CurvatureErrors;
 use learn::predict::Predictor;
 use rayon::prelude::*;
@@ -69,12 +73,13 @@ pub struct EvalOptions {
 }
 
 /// The methods, in report order.
-pub const METHODS: [&str; 5] = [
+pub const METHODS: [&str; 6] = [
     "network",
     "dqs",
     "mean-residual",
     "nearest-neighbour",
     "linear",
+    "kernel",
 ];
 
 /// Display names of [`METHODS`] (the network's is its variant's).
@@ -85,6 +90,7 @@ pub fn method_title(method: &str, network: &str) -> String {
         "mean-residual" => "Mean residual".into(),
         "nearest-neighbour" => "Nearest neighbour".into(),
         "linear" => "Linear (ridge)".into(),
+        "kernel" => "Kernel (linear + RBF)".into(),
         "simulator" => "Simulator".into(),
         m => m.into(),
     }
@@ -152,6 +158,11 @@ pub struct Evaluation {
     /// Per ridge strength tried, the linear baseline's validation Edist (cm; empty without
     /// validation samples).
     pub linear_validation: Vec<(f64, f64)>,
+    /// The kernel baseline's strengths and width.
+    pub kernel: learn::kernel::Picks,
+    /// Per (width factor, strength) tried, the kernel baseline's validation Edist (cm;
+    /// empty without validation samples).
+    pub kernel_validation: Vec<(f64, f64, f64)>,
 }
 
 /// Distance between two training keys: mean bone rotation angle (radians) plus the
@@ -196,16 +207,16 @@ fn progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
-/// The training split's mean displacement, the keys of its samples and the linear
-/// baseline's sums (one pass).
-fn training_summary(
-    data: &Dataset,
-    show: bool,
-) -> Result<(Vec<Vec3>, Vec<Key>, linear::Accumulator), EvalError> {
+/// The training split's mean displacement, the keys of its samples, the linear baseline's
+/// sums and the samples for the kernel baseline (one pass).
+type Summary = (Vec<Vec3>, Vec<Key>, linear::Accumulator, Vec<KernelRow>);
+
+fn training_summary(data: &Dataset, show: bool) -> Result<Summary, EvalError> {
     let n = data.statics.garment_vertices.len();
     let mut sum = vec![glam::DVec3::ZERO; n];
     let mut keys = Vec::new();
     let mut sums: Option<linear::Accumulator> = None;
+    let mut rows = Vec::new();
     let bar = progress(
         show,
         data.count(Split::Train),
@@ -221,6 +232,11 @@ fn training_summary(
         sums.get_or_insert_with(|| linear::Accumulator::new(x.len(), n))
             .add(&x, &disp);
         keys.push(Key::of(&s.row));
+        rows.push(KernelRow {
+            body: s.record.plan.body,
+            x,
+            d: disp,
+        });
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -232,7 +248,12 @@ fn training_summary(
     }
     let k = keys.len() as f64;
     let sums = sums.expect("at least one training sample");
-    Ok((sum.iter().map(|s| (*s / k).as_vec3()).collect(), keys, sums))
+    Ok((
+        sum.iter().map(|s| (*s / k).as_vec3()).collect(),
+        keys,
+        sums,
+        rows,
+    ))
 }
 
 /// The evaluated samples of `split` (at most `limit`).
@@ -267,13 +288,16 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         )));
     }
     // Baselines: the mean displacement and, per evaluated sample, the nearest training key.
-    let (mean_disp, keys, sums) = training_summary(data, opts.progress)?;
-    let (linear, linear_validation) = linear::fit_on_validation(&sums, data)?.ok_or_else(|| {
+    let (mean_disp, keys, sums, kernel_rows) = training_summary(data, opts.progress)?;
+    let validation = linear::read_split(data, Split::Val)?;
+    let (linear, linear_validation) = linear::fit(&sums, &validation).ok_or_else(|| {
         EvalError::Invalid("the linear baseline's normal equations cannot be solved".into())
     })?;
     let mut neighbour_of: HashMap<u64, u64> = HashMap::new();
+    let mut evaluated: Vec<(u64, Vec<f64>)> = Vec::new();
     for s in split_samples(data, opts.split, opts.limit) {
         let s = s?;
+        evaluated.push((s.row.id, linear::features(&s.row.shape, &s.row.pose)));
         let key = Key::of(&s.row);
         // On the training split a sample must not be its own neighbour.
         let best = keys
@@ -288,6 +312,26 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
             })?;
         neighbour_of.insert(s.row.id, best.1);
     }
+    // The kernel baseline's displacements of the evaluated samples, solved together.
+    let (kernel_of, kernel, kernel_validation) = {
+        let bar = progress(opts.progress, 1, "kernel baseline: fitting");
+        let refs: Vec<&KernelRow> = kernel_rows.iter().collect();
+        let fit = Fit::new(&refs, &validation, None, &mut |m| {
+            bar.set_message(format!("kernel baseline: {m}"))
+        })
+        .ok_or_else(|| {
+            EvalError::Invalid("the kernel baseline's system cannot be solved".into())
+        })?;
+        let xs: Vec<&[f64]> = evaluated.iter().map(|(_, x)| x.as_slice()).collect();
+        let of: HashMap<u64, Vec<Vec3>> = evaluated
+            .iter()
+            .map(|(id, _)| *id)
+            .zip(fit.displacements(&xs))
+            .collect();
+        bar.finish_and_clear();
+        (of, fit.picks(), fit.tried.clone())
+    };
+    drop(kernel_rows);
     let wanted: HashSet<u64> = neighbour_of.values().copied().collect();
     let mut displacement: HashMap<u64, Vec<Vec3>> = HashMap::new();
     for s in data.samples(Split::Train) {
@@ -349,7 +393,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
             .map(|(s, pred)| {
                 let row = &s.row;
                 let nn = &displacement[&neighbour_of[&row.id]];
-                let garments: [(&str, Vec<Vec3>); 5] = [
+                let garments: [(&str, Vec<Vec3>); 6] = [
                     ("network", pred),
                     ("dqs", row.warped.clone()),
                     ("mean-residual", mean_residual(row)),
@@ -360,6 +404,14 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
                     (
                         "linear",
                         linear.predict(&linear::features(&row.shape, &row.pose), &row.warped),
+                    ),
+                    (
+                        "kernel",
+                        row.warped
+                            .iter()
+                            .zip(&kernel_of[&row.id])
+                            .map(|(m, d)| *m + *d)
+                            .collect(),
                     ),
                 ];
                 let floor = row.body.iter().map(|p| p.y).fold(f32::MAX, f32::min);
@@ -443,6 +495,8 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         seconds: t0.elapsed().as_secs_f64(),
         linear,
         linear_validation,
+        kernel,
+        kernel_validation,
     })
 }
 

@@ -363,6 +363,8 @@ pub fn write_report(
         non_finite_predictions: usize,
         linear_lambda: f64,
         linear_validation_edist_cm: &'a [(f64, f64)],
+        kernel: learn::kernel::Picks,
+        kernel_validation_edist_cm: &'a [(f64, f64, f64)],
         samples: &'a [crate::evaluate::SampleEval],
     }
     let curve_points = |c: &BTreeMap<String, crate::metrics::Curve>| {
@@ -396,6 +398,8 @@ pub fn write_report(
         non_finite_predictions: non_finite,
         linear_lambda: ev.linear.lambda,
         linear_validation_edist_cm: &ev.linear_validation,
+        kernel: ev.kernel,
+        kernel_validation_edist_cm: &ev.kernel_validation,
         samples: &ev.samples,
     };
     files.push((
@@ -455,12 +459,13 @@ pub fn write_report(
     let dqs = sums["dqs"].edist_cm.0;
     writeln!(
         md,
-        "\n{} is at {:.1}% of the DQS baseline's Edist; the mean-residual, nearest-neighbour and linear baselines at {:.1}%, {:.1}% and {:.1}%.\n",
+        "\n{} is at {:.1}% of the DQS baseline's Edist; the mean-residual, nearest-neighbour, linear and kernel baselines at {:.1}%, {:.1}%, {:.1}% and {:.1}%.\n",
         ev.network,
         100.0 * net_sum.edist_cm.0 / dqs,
         100.0 * sums["mean-residual"].edist_cm.0 / dqs,
         100.0 * sums["nearest-neighbour"].edist_cm.0 / dqs,
-        100.0 * sums["linear"].edist_cm.0 / dqs
+        100.0 * sums["linear"].edist_cm.0 / dqs,
+        100.0 * sums["kernel"].edist_cm.0 / dqs
     )
     .unwrap();
     let tried: Vec<String> = ev
@@ -474,6 +479,23 @@ pub fn write_report(
         ev.linear.lambda,
         if tried.is_empty() {
             " (no validation samples: the default)".to_string()
+        } else {
+            format!(" among {}", tried.join(", "))
+        }
+    )
+    .unwrap();
+    let tried: Vec<String> = ev
+        .kernel_validation
+        .iter()
+        .map(|(c, l, e)| format!("c {c}, {l} ({e:.2} cm)"))
+        .collect();
+    writeln!(
+        md,
+        "The kernel baseline adds to it an RBF kernel ridge regression of what it leaves on the training drapes, on the standardised features (`learn/src/kernel.rs`): width factor c {} (gamma = c / 2d) and strength {}, picked by validation Edist{}.\n",
+        ev.kernel.width,
+        ev.kernel.lambda,
+        if tried.is_empty() {
+            " (no validation samples: the defaults)".to_string()
         } else {
             format!(" among {}", tried.join(", "))
         }

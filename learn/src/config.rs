@@ -136,9 +136,10 @@ pub struct ModelConfig {
     /// The garment the network starts from (default `none`: the DQS warp M, as the paper).
     /// `linear`: M plus the linear (ridge) map from shape and bone rotations to the
     /// displacement, fitted on the training split when the run starts (cross-fitted for the
-    /// training samples, `learn::linear::Prior`) and kept in the run's `prior.safetensors`;
-    /// the network predicts what is left (docs/learn.md, session 28). Left out of the saved
-    /// config when `none`.
+    /// training samples, `learn::prior::Prior`) and kept in the run's `prior.safetensors`;
+    /// the network predicts what is left (docs/learn.md, session 28). `kernel`: the same
+    /// with the linear map plus an RBF kernel ridge regression of its residual
+    /// (`learn::kernel`, session 30). Left out of the saved config when `none`.
     #[serde(skip_serializing_if = "PriorKind::is_none")]
     pub prior: PriorKind,
 }
@@ -152,9 +153,21 @@ pub enum PriorKind {
     None,
     /// M plus the linear prior's displacement.
     Linear,
+    /// M plus the kernel prior's displacement (the linear map and a kernel ridge
+    /// regression of what it leaves).
+    Kernel,
 }
 
 impl PriorKind {
+    /// As written in configs.
+    pub fn name(self) -> &'static str {
+        match self {
+            PriorKind::None => "none",
+            PriorKind::Linear => "linear",
+            PriorKind::Kernel => "kernel",
+        }
+    }
+
     /// The paper's input.
     pub fn is_none(&self) -> bool {
         *self == PriorKind::None

@@ -27,7 +27,7 @@ pub struct Prepared {
     /// Shape and pose parameters.
     pub params: Vec<f32>,
     /// The network's input garment, root-relative: the warped garment M, plus the linear
-    /// prior's displacement with `model.prior = "linear"`.
+    /// prior's displacement with `model.prior`.
     pub warped: Vec<Vec3>,
     /// Simulated garment G, root-relative (absent at inference).
     pub target: Option<Vec<Vec3>>,
@@ -56,8 +56,8 @@ pub struct Preprocessor {
     push_out: f32,
     /// L_RQ neighbourhood size found on each target (0: none).
     rq_k: usize,
-    /// The linear prior added to M (`model.prior = "linear"`).
-    prior: Option<std::sync::Arc<crate::linear::Prior>>,
+    /// The prior added to M (`model.prior`).
+    prior: Option<std::sync::Arc<crate::prior::Prior>>,
 }
 
 impl Preprocessor {
@@ -81,7 +81,7 @@ impl Preprocessor {
     }
 
     /// The same, adding `prior`'s displacement to every warped garment.
-    pub fn with_prior(mut self, prior: std::sync::Arc<crate::linear::Prior>) -> Self {
+    pub fn with_prior(mut self, prior: std::sync::Arc<crate::prior::Prior>) -> Self {
         self.prior = Some(prior);
         self
     }

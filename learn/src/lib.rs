@@ -5,6 +5,9 @@
 //! - [`loss`]: L_vert, L_pen, L_norm, L_bend, the curvature losses.
 //! - [`linear`]: the linear (ridge) map from shape and pose to the displacement: a baseline
 //!   of `drape eval` and the optional prior under a network (`model.prior`).
+//! - [`kernel`]: that map plus an RBF kernel ridge regression of what it leaves: a baseline,
+//!   the learning curve's map, and a prior.
+//! - [`prior`]: the prior under a network, cross-fitted by body for the training samples.
 //! - [`data`]: dataset rows to network inputs (k-NN with kiddo).
 //! - [`topology`]: the garment's mesh graph.
 //! - [`config`]: model and training configs (`configs/train/*.toml`).
@@ -13,10 +16,12 @@
 pub mod bench;
 pub mod config;
 pub mod data;
+pub mod kernel;
 pub mod linear;
 pub mod loss;
 pub mod model;
 pub mod predict;
+pub mod prior;
 pub mod run;
 pub mod topology;
 pub mod train;

@@ -19,18 +19,13 @@
 //!   network must find a vertex from its warped coordinates) and no notion of the body's
 //!   surface, so it says how much of the drape is a smooth function of the shape and pose
 //!   parameters alone;
-//! - **a prior** under a network (`model.prior = "linear"`, [`Prior`]): the network reads
-//!   `M + linear` instead of the DQS warp `M` and predicts what is left. The training
-//!   samples' prior is cross-fitted ([`FOLDS`] folds by body: each sample's displacement
-//!   comes from a fit without its body), so the network trains on priors as wrong as the
-//!   ones it meets on new bodies; the run keeps the fit on all training samples in
-//!   `prior.safetensors` for inference.
+//! - **a prior** under a network (`model.prior = "linear"`, [`crate::prior`]): the network
+//!   reads `M + linear` instead of the DQS warp `M` and predicts what is left.
 
-use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 use dataset::config::Split;
-use dataset::reader::{Dataset, Sample};
+use dataset::reader::Dataset;
 use glam::{Mat3, Quat, Vec3};
 use nalgebra::{DMatrix, DVector};
 
@@ -263,117 +258,20 @@ impl Linear {
     pub fn vertices(&self) -> usize {
         self.outputs / 3
     }
-}
 
-/// Cross-fitting folds of [`Prior::fit`].
-pub const FOLDS: u64 = 5;
+    /// The weights, `[features + 1, 3 N]`.
+    pub fn weights(&self) -> &DMatrix<f64> {
+        &self.weights
+    }
 
-/// The linear prior of a run: the fit on all training samples, and for each training sample
-/// the displacement of the fit without its body's fold.
-#[derive(Debug, Clone)]
-pub struct Prior {
-    /// Fitted on every training sample (inference, validation).
-    pub model: Linear,
-    /// Training sample id to its cross-fitted displacement.
-    pub held_out: HashMap<u64, Vec<Vec3>>,
-    /// Validation Edist (cm) per strength tried.
-    pub tried: Vec<(f64, f64)>,
-}
-
-impl Prior {
-    /// An inference-only prior (no training samples).
-    pub fn of(model: Linear) -> Self {
+    /// A model of these weights (`[features + 1, 3 N]`) fitted with strength `lambda`.
+    pub fn from_weights(weights: DMatrix<f64>, lambda: f64) -> Self {
         Self {
-            model,
-            held_out: HashMap::new(),
-            tried: Vec::new(),
+            width: weights.nrows(),
+            outputs: weights.ncols(),
+            weights,
+            lambda,
         }
-    }
-
-    /// Adds a sample's displacement to `garment`: its cross-fitted one if `id` is a
-    /// training sample of the fit, else the full model's on `params`
-    /// ([`features_from_params`]).
-    pub fn add_to(&self, id: u64, params: &[f32], garment: &mut [Vec3]) {
-        let add = |d: &[Vec3], garment: &mut [Vec3]| {
-            for (m, d) in garment.iter_mut().zip(d) {
-                *m += *d;
-            }
-        };
-        match self.held_out.get(&id) {
-            Some(d) => add(d, garment),
-            None => add(
-                &self.model.displacement(&features_from_params(params)),
-                garment,
-            ),
-        }
-    }
-
-    /// Fits on `data`'s training split (only `subset` if given), the strength picked on
-    /// its validation split; `lambda` fixes the strength instead. Two passes over the
-    /// training split: the sums, then the cross-fitted displacements.
-    pub fn fit(
-        data: &Dataset,
-        subset: Option<&HashSet<u64>>,
-        lambda: Option<f64>,
-        progress: bool,
-    ) -> Result<Self, LearnError> {
-        let n = data.statics.garment_vertices.len();
-        let width = features(&[0.0; 9], &vec![Quat::IDENTITY; data.statics.bones]).len();
-        let mut total = Accumulator::new(width, n);
-        let mut folds: Vec<Accumulator> = (0..FOLDS).map(|_| Accumulator::new(width, n)).collect();
-        let fold = |s: &Sample| (s.record.plan.body % FOLDS) as usize;
-        // Each wanted training sample, one shard in memory at a time, with a progress bar.
-        let each = |what: &str, f: &mut dyn FnMut(&Sample)| -> Result<(), LearnError> {
-            let bar = crate::run::progress(progress, data.count(Split::Train) as u64);
-            bar.set_message(format!("linear prior: {what}"));
-            for s in data.samples(Split::Train) {
-                let s = s?;
-                bar.inc(1);
-                if subset.is_none_or(|k| k.contains(&s.row.id)) {
-                    f(&s);
-                }
-            }
-            bar.finish_and_clear();
-            Ok(())
-        };
-        each("sums", &mut |s| {
-            let x = features(&s.row.shape, &s.row.pose);
-            let d = s.row.displacement();
-            total.add(&x, &d);
-            folds[fold(s)].add(&x, &d);
-        })?;
-        if total.samples() == 0 {
-            return Err(LearnError::Mismatch(format!(
-                "{} has no training samples to fit the linear prior on",
-                data.dir.display()
-            )));
-        }
-        let unsolvable =
-            || LearnError::Mismatch("the linear prior's normal equations cannot be solved".into());
-        let (model, tried) = match lambda {
-            Some(l) => (total.solve(l).ok_or_else(unsolvable)?, Vec::new()),
-            None => fit_on_validation(&total, data)?.ok_or_else(unsolvable)?,
-        };
-        let fold_models: Vec<Option<Linear>> = folds
-            .iter()
-            .map(|f| {
-                // A fold holding every sample (one body) has nothing to fit without it.
-                (f.samples() < total.samples())
-                    .then(|| total.without(f).solve(model.lambda))
-                    .flatten()
-            })
-            .collect();
-        let mut held_out = HashMap::new();
-        each("cross-fitted", &mut |s| {
-            let m = fold_models[fold(s)].as_ref().unwrap_or(&model);
-            let x = features(&s.row.shape, &s.row.pose);
-            held_out.insert(s.row.id, m.displacement(&x));
-        })?;
-        Ok(Self {
-            model,
-            held_out,
-            tried,
-        })
     }
 }
 

@@ -10,10 +10,11 @@ use dataset::shard::{Row, Static};
 use glam::Vec3;
 
 use crate::LearnError;
-use crate::config::{PriorKind, TrainConfig};
+use crate::config::TrainConfig;
 use crate::data::{Prepared, Preprocessor, collate, row_params};
-use crate::linear::{Linear, Prior};
+use crate::linear::Linear;
 use crate::model::{GarNet, Graph};
+use crate::prior::{Prior, PriorMap};
 use crate::run::open_run;
 use crate::topology::Topology;
 use crate::train::{RunInfo, load_model};
@@ -43,7 +44,7 @@ pub struct Timing {
 }
 
 impl Predictor {
-    /// Loads `run`'s best weights (and its linear prior, `prior.safetensors`, if the model
+    /// Loads `run`'s best weights (and its prior, `prior.safetensors`, if the model
     /// has one) for the garment and body described by `statics` (the dataset's static
     /// file, or the template and body model). Refuses a garment whose vertex count is not
     /// the run's.
@@ -67,13 +68,14 @@ impl Predictor {
         }
         let mut p = Self::untrained(&config, statics);
         p.model = load_model(p.model, &best)?;
-        if config.model.prior == PriorKind::Linear {
+        if !config.model.prior.is_none() {
             let path = run.join("prior.safetensors");
-            let prior = Linear::load(&path)?;
+            let prior = PriorMap::load(&path, config.model.prior)?;
             if prior.vertices() != n {
                 return Err(LearnError::Mismatch(format!(
-                    "{}: a linear prior for {} vertices; the garment has {n}",
+                    "{}: a {} prior for {} vertices; the garment has {n}",
                     path.display(),
+                    config.model.prior.name(),
                     prior.vertices()
                 )));
             }
@@ -92,9 +94,13 @@ impl Predictor {
         let n = statics.garment_vertices.len();
         let topology = Topology::new(n, &statics.garment_triangles);
         let mut pre = Preprocessor::new(statics, &config.model, config.loss.pen_push_out, 0);
-        if config.model.prior == PriorKind::Linear {
+        if !config.model.prior.is_none() {
+            // The linear map's cost; a kernel prior's (one pass over its training drapes)
+            // needs them, so an untrained network times the linear one.
             let features = crate::linear::features_from_params(&vec![0.0; params]).len();
-            pre = pre.with_prior(Arc::new(Prior::of(Linear::zeros(features, n))));
+            pre = pre.with_prior(Arc::new(Prior::of(PriorMap::Linear(Linear::zeros(
+                features, n,
+            )))));
         }
         Self {
             pre,

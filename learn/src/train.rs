@@ -385,25 +385,27 @@ fn epoch_groups(
         .collect()
 }
 
-/// Fits the linear prior of `model.prior = "linear"` on the training samples (`subset` of
+/// Fits the prior of `model.prior` (linear or kernel) on the training samples (`subset` of
 /// them if given) and keeps the fit on all of them in `run/prior.safetensors`. The fit is
 /// deterministic, so a resumed run makes it again and finds the file it wrote.
-fn linear_prior(
+fn fit_prior(
     data: &Dataset,
     subset: Option<&std::collections::HashSet<u64>>,
+    kind: crate::config::PriorKind,
     run: &Path,
     progress: bool,
-) -> Result<std::sync::Arc<crate::linear::Prior>, LearnError> {
-    let prior = crate::linear::Prior::fit(data, subset, None, progress)?;
+) -> Result<std::sync::Arc<crate::prior::Prior>, LearnError> {
+    let prior = crate::prior::Prior::fit(data, subset, kind, progress)?;
     let tried: Vec<String> = prior
         .tried
         .iter()
-        .map(|(l, e)| format!("{l}: {e:.2} cm"))
+        .map(|(what, e)| format!("{what}: {e:.2} cm"))
         .collect();
     eprintln!(
-        "linear prior: {} training samples, strength {} (validation Edist {})",
+        "{} prior: {} training samples, {} (validation Edist {})",
+        kind.name(),
         prior.held_out.len(),
-        prior.model.lambda,
+        prior.model.describe(),
         tried.join(", ")
     );
     let path = run.join("prior.safetensors");
@@ -474,10 +476,11 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             ids.into_iter().collect()
         });
     let mut setup = setup;
-    if config.model.prior == crate::config::PriorKind::Linear {
-        setup.pre = setup.pre.with_prior(linear_prior(
+    if !config.model.prior.is_none() {
+        setup.pre = setup.pre.with_prior(fit_prior(
             &data,
             subset.as_ref(),
+            config.model.prior,
             &opts.run,
             opts.progress,
         )?);
