@@ -75,11 +75,14 @@ impl PriorMap {
         match self {
             PriorMap::Linear(m) => format!("strength {}", m.lambda),
             PriorMap::Kernel(m) => format!(
-                "linear strength {}, kernel width {} and strength {}, {} training drapes",
+                "linear strength {}, kernel width {} and strength {}, {} training drapes, \
+                 residual basis of rank {} keeping {:.2}% of its energy",
                 m.linear.lambda,
                 m.width,
                 m.lambda,
-                m.samples()
+                m.samples(),
+                m.rank(),
+                100.0 * m.kept
             ),
         }
     }
@@ -179,7 +182,7 @@ impl Prior {
                 .collect();
             let picks = fit.picks();
             say("the dual weights of the full fit");
-            let map = fit.map();
+            let map = fit.map(crate::kernel::RANK);
             let held = cross_fit(&rows, picks, FOLDS, &mut |m| say(m)).ok_or_else(unsolvable)?;
             (PriorMap::Kernel(map), held, tried)
         } else {
