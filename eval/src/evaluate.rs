@@ -491,7 +491,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         train_samples: keys.len(),
         network_seconds_per_drape: network_seconds / n as f64,
         batch: opts.batch.max(1),
-        network: net.config.model.variant.paper_name().to_string(),
+        network: net.config.model.display_name(),
         seconds: t0.elapsed().as_secs_f64(),
         linear,
         linear_validation,

@@ -436,7 +436,7 @@ pub fn measure(
         })
         .collect();
     Ok(SpeedReport {
-        network: net.config.model.variant.paper_name().to_string(),
+        network: net.config.model.display_name(),
         vertices: data.statics.garment_vertices.len(),
         threads: rayon::current_num_threads(),
         samples,

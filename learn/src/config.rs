@@ -209,6 +209,15 @@ impl Default for ModelConfig {
 }
 
 impl ModelConfig {
+    /// The variant's paper name, with its prior if it has one ("GarNet-Local over the
+    /// kernel prior").
+    pub fn display_name(&self) -> String {
+        match self.prior {
+            PriorKind::None => self.variant.paper_name().to_string(),
+            p => format!("{} over the {} prior", self.variant.paper_name(), p.name()),
+        }
+    }
+
     /// The paper-width config: 6,890 body points, 512-d global body feature, 8 heads.
     pub fn paper(variant: Variant) -> Self {
         Self {
