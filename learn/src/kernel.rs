@@ -28,7 +28,7 @@ use glam::Vec3;
 use nalgebra::DMatrix;
 
 use crate::LearnError;
-use crate::linear::{Accumulator, Labelled, Linear};
+use crate::linear::{Accumulator, Labelled, Linear, f64s, read_matrices};
 
 /// Kernel width factors `c` tried (`gamma = c / (2 d)`).
 pub const WIDTHS: [f64; 3] = [0.5, 1.0, 2.0];
@@ -562,15 +562,6 @@ impl KernelMap {
             .collect()
     }
 
-    /// The predicted garment: `M` plus the predicted displacement.
-    pub fn predict(&self, x: &[f64], warped: &[Vec3]) -> Vec<Vec3> {
-        warped
-            .iter()
-            .zip(self.displacement(x))
-            .map(|(m, d)| *m + d)
-            .collect()
-    }
-
     /// Garment vertices it predicts for.
     pub fn vertices(&self) -> usize {
         self.outputs / 3
@@ -642,47 +633,24 @@ impl KernelMap {
 
     /// Reads [`KernelMap::encode`]'s file.
     pub fn load(path: &Path) -> Result<Self, LearnError> {
+        use safetensors::Dtype::{F32, F64};
         let bad = |reason: String| LearnError::Checkpoint {
             path: path.to_path_buf(),
             reason,
         };
-        let bytes = std::fs::read(path).map_err(|source| LearnError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
-        let (_, header) =
-            safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| bad(e.to_string()))?;
-        let meta: serde_json::Value = header
-            .metadata()
-            .as_ref()
-            .and_then(|m| m.get("drape"))
-            .and_then(|j| serde_json::from_str(j).ok())
-            .ok_or_else(|| bad("no drape metadata".into()))?;
-        if meta["format"] != "drape-kernel/2" {
-            return Err(bad(format!(
-                "format {}, expected drape-kernel/2",
-                meta["format"]
-            )));
-        }
-        let tensor = |name: &str, dtype| -> Result<(Vec<usize>, Vec<u8>), LearnError> {
-            let t = st.tensor(name).map_err(|e| bad(e.to_string()))?;
-            if t.dtype() != dtype || t.shape().len() != 2 {
-                return Err(bad(format!("{name}: expected a 2-d {dtype:?} tensor")));
-            }
-            Ok((t.shape().to_vec(), t.data().to_vec()))
-        };
-        let f64s = |b: &[u8]| -> Vec<f64> {
-            b.chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
-                .collect()
-        };
-        use safetensors::Dtype::{F32, F64};
-        let (ls, lb) = tensor("linear", F64)?;
-        let (ss, sb) = tensor("standard", F64)?;
-        let (zs, zb) = tensor("z", F64)?;
-        let (as_, ab) = tensor("a", F32)?;
-        let (bs, bb) = tensor("basis", F32)?;
+        let (meta, t) = read_matrices(
+            path,
+            "drape-kernel/2",
+            &[
+                ("linear", F64),
+                ("standard", F64),
+                ("z", F64),
+                ("a", F32),
+                ("basis", F32),
+            ],
+        )?;
+        let [(ls, lb), (ss, sb), (zs, zb), (as_, ab), (bs, bb)] =
+            <[_; 5]>::try_from(t).expect("five tensors asked for");
         let number = |k: &str| meta[k].as_f64().ok_or_else(|| bad(format!("no {k}")));
         if ss[1] != 3 || zs[1] != ss[0] || as_[0] != zs[0] || bs[0] != ls[1] || bs[1] != as_[1] {
             return Err(bad(format!(

@@ -203,42 +203,16 @@ impl Linear {
 
     /// Reads [`Linear::encode`]'s file.
     pub fn load(path: &Path) -> Result<Self, LearnError> {
-        let bad = |reason: String| LearnError::Checkpoint {
-            path: path.to_path_buf(),
-            reason,
-        };
-        let bytes = std::fs::read(path).map_err(|source| LearnError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
-        let (_, header) =
-            safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| bad(e.to_string()))?;
-        let meta: serde_json::Value = header
-            .metadata()
-            .as_ref()
-            .and_then(|m| m.get("drape"))
-            .and_then(|j| serde_json::from_str(j).ok())
-            .ok_or_else(|| bad("no drape metadata".into()))?;
-        if meta["format"] != "drape-linear/1" {
-            return Err(bad(format!(
-                "format {}, expected drape-linear/1",
-                meta["format"]
-            )));
-        }
-        let t = st.tensor("weights").map_err(|e| bad(e.to_string()))?;
-        let (&[width, outputs], safetensors::Dtype::F64) = (t.shape(), t.dtype()) else {
-            return Err(bad("weights: expected a 2-d F64 tensor".into()));
-        };
-        let values: Vec<f64> = t
-            .data()
-            .chunks_exact(8)
-            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-            .collect();
+        let (meta, mut t) = read_matrices(
+            path,
+            "drape-linear/1",
+            &[("weights", safetensors::Dtype::F64)],
+        )?;
+        let (shape, bytes) = t.remove(0);
         Ok(Self {
-            width,
-            outputs,
-            weights: DMatrix::from_row_slice(width, outputs, &values),
+            width: shape[0],
+            outputs: shape[1],
+            weights: DMatrix::from_row_slice(shape[0], shape[1], &f64s(&bytes)),
             lambda: meta["lambda"].as_f64().unwrap_or(f64::NAN),
         })
     }
@@ -273,6 +247,57 @@ impl Linear {
             lambda,
         }
     }
+}
+
+/// A matrix file's tensors: its drape metadata (which must name `format`) and, per wanted
+/// name and type, a 2-d tensor's shape and little-endian bytes; a clear error otherwise.
+pub(crate) type Matrices = (serde_json::Value, Vec<(Vec<usize>, Vec<u8>)>);
+
+/// Reads a [`Matrices`] file (the linear and kernel maps' `prior.safetensors`).
+pub(crate) fn read_matrices(
+    path: &Path,
+    format: &str,
+    wanted: &[(&str, safetensors::Dtype)],
+) -> Result<Matrices, LearnError> {
+    let bad = |reason: String| LearnError::Checkpoint {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let bytes = std::fs::read(path).map_err(|source| LearnError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
+    let (_, header) =
+        safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| bad(e.to_string()))?;
+    let meta: serde_json::Value = header
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get("drape"))
+        .and_then(|j| serde_json::from_str(j).ok())
+        .ok_or_else(|| bad("no drape metadata".into()))?;
+    if meta["format"] != format {
+        return Err(bad(format!("format {}, expected {format}", meta["format"])));
+    }
+    let tensors = wanted
+        .iter()
+        .map(|&(name, dtype)| {
+            let t = st.tensor(name).map_err(|e| bad(e.to_string()))?;
+            if t.dtype() != dtype || t.shape().len() != 2 {
+                return Err(bad(format!("{name}: expected a 2-d {dtype:?} tensor")));
+            }
+            Ok((t.shape().to_vec(), t.data().to_vec()))
+        })
+        .collect::<Result<_, _>>()?;
+    Ok((meta, tensors))
+}
+
+/// Little-endian F64 bytes as numbers.
+pub(crate) fn f64s(bytes: &[u8]) -> Vec<f64> {
+    bytes
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+        .collect()
 }
 
 /// A fitted model and, per strength tried, its validation Edist (cm).
