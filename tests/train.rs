@@ -315,6 +315,11 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         m["kernel"]["lambda"].as_f64().unwrap(),
     );
     assert!(learn::kernel::WIDTHS.contains(&c) && learn::kernel::LAMBDAS.contains(&l));
+    let tried = m["kernel_validation_edist_cm"].as_array().unwrap();
+    assert_eq!(
+        tried.len(),
+        learn::kernel::WIDTHS.len() * learn::kernel::LAMBDAS.len()
+    );
     // The curves rise from 0 to at most 1.
     for (kind, top) in [("distance_cm", 3.0), ("angle_deg", 45.0)] {
         let c = m["curves"][kind]["network"].as_array().unwrap();

@@ -124,11 +124,13 @@ pub fn cholesky_solve(l: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
     let solve_block = |y: &mut DMatrix<f64>, s: usize, e: usize, transposed: bool| {
         let diag = l.view((s, s), (e - s, e - s)).clone_owned();
         let mut block = y.rows(s, e - s).clone_owned();
-        if transposed {
-            diag.tr_solve_lower_triangular_mut(&mut block);
+        // A factor from [`cholesky`] has a positive diagonal, so these cannot fail.
+        let solved = if transposed {
+            diag.tr_solve_lower_triangular_mut(&mut block)
         } else {
-            diag.solve_lower_triangular_mut(&mut block);
-        }
+            diag.solve_lower_triangular_mut(&mut block)
+        };
+        debug_assert!(solved, "a zero on the factor's diagonal");
         y.rows_mut(s, e - s).copy_from(&block);
     };
     // L Y = B.
@@ -473,13 +475,15 @@ fn row_basis(r: &DMatrix<f64>, rank: usize) -> DMatrix<f64> {
 }
 
 /// Each row's displacement from a fit without its fold of bodies (`body % folds`), with
-/// fixed `picks`; a fold that holds every row gets the fit on all of them.
+/// fixed `picks`. An error if one fold holds every row (there is nothing to fit without
+/// it: an in-sample prior would be far better on the training drapes than on new bodies)
+/// or a system cannot be solved.
 pub fn cross_fit(
     rows: &[Row],
     picks: Picks,
     folds: u64,
     progress: &mut dyn FnMut(&str),
-) -> Option<Vec<Vec<Vec3>>> {
+) -> Result<Vec<Vec<Vec3>>, String> {
     let mut out: Vec<Option<Vec<Vec3>>> = vec![None; rows.len()];
     for f in 0..folds {
         let (inside, rest): (Vec<usize>, Vec<usize>) =
@@ -487,23 +491,30 @@ pub fn cross_fit(
         if inside.is_empty() {
             continue;
         }
+        if rest.is_empty() {
+            return Err(format!(
+                "all {} training drapes come from bodies of one fold (body index % {folds} = \
+                 {f}): cross-fitting needs bodies in two folds",
+                rows.len()
+            ));
+        }
         progress(&format!(
             "fold {} of {folds}: {} drapes held out",
             f + 1,
             inside.len()
         ));
-        let train: Vec<&Row> = if rest.is_empty() {
-            rows.iter().collect()
-        } else {
-            rest.iter().map(|&i| &rows[i]).collect()
-        };
-        let fit = Fit::new(&train, &[], Some(picks), &mut |_| {})?;
+        let train: Vec<&Row> = rest.iter().map(|&i| &rows[i]).collect();
+        let fit = Fit::new(&train, &[], Some(picks), &mut |_| {})
+            .ok_or_else(|| format!("the fit without fold {f} cannot be solved"))?;
         let xs: Vec<&[f64]> = inside.iter().map(|&i| rows[i].x.as_slice()).collect();
         for (i, d) in inside.iter().zip(fit.displacements(&xs)) {
             out[*i] = Some(d);
         }
     }
-    out.into_iter().collect()
+    Ok(out
+        .into_iter()
+        .map(|d| d.expect("every row in a fold"))
+        .collect())
 }
 
 /// A fitted kernel map that predicts one sample at a time ([`Fit::map`]).
@@ -565,6 +576,11 @@ impl KernelMap {
     /// Garment vertices it predicts for.
     pub fn vertices(&self) -> usize {
         self.outputs / 3
+    }
+
+    /// Features it takes ([`crate::linear::features`]).
+    pub fn features(&self) -> usize {
+        self.linear.weights().nrows() - 1
     }
 
     /// Columns of its residual basis.
@@ -657,10 +673,17 @@ impl KernelMap {
                 "inconsistent shapes: linear {ls:?}, standard {ss:?}, z {zs:?}, a {as_:?}, basis {bs:?}"
             )));
         }
-        let keep = f64s(&sb)
+        let keep: Vec<(usize, f64, f64)> = f64s(&sb)
             .chunks_exact(3)
             .map(|c| (c[0] as usize, c[1], c[2]))
             .collect();
+        if ls[1] % 3 != 0 || ls[0] == 0 || keep.iter().any(|&(j, _, _)| j + 1 >= ls[0]) {
+            return Err(bad(format!(
+                "linear {ls:?}: not 3 N outputs, or a standardised feature beyond its {} \
+                 features",
+                ls[0].saturating_sub(1)
+            )));
+        }
         let z = if zs[1] == 0 {
             vec![Vec::new(); zs[0]]
         } else {
@@ -872,6 +895,25 @@ mod tests {
         assert!(KernelMap::load(&path).is_err());
 
         let held = cross_fit(&rows, picks, 5, &mut |_| {}).unwrap();
+        // A fold's predictions do not depend on its own drapes: change them all and its
+        // held-out predictions stay bit for bit; the other folds' change.
+        let mut changed = rows.clone();
+        for r in changed.iter_mut().filter(|r| r.body % 5 == 0) {
+            r.d = vec![Vec3::splat(0.3); 2];
+        }
+        let again = cross_fit(&changed, picks, 5, &mut |_| {}).unwrap();
+        for (i, r) in rows.iter().enumerate() {
+            assert_eq!(
+                held[i] == again[i],
+                r.body % 5 == 0,
+                "row {i}, body {}",
+                r.body
+            );
+        }
+        // One fold only: refused.
+        let one_body: Vec<Row> = rows.iter().filter(|r| r.body == 3).cloned().collect();
+        let e = cross_fit(&one_body, picks, 5, &mut |_| {}).unwrap_err();
+        assert!(e.contains("one fold"), "{e}");
         assert_eq!(held.len(), rows.len());
         let own: Vec<Vec3> = map.displacement(&rows[0].x);
         assert!(held[0].iter().zip(&own).any(|(a, b)| a.distance(*b) > 1e-6));

@@ -79,6 +79,22 @@ impl Predictor {
                     prior.vertices()
                 )));
             }
+            let features =
+                crate::linear::features_from_params(&vec![
+                    0.0;
+                    crate::data::param_count(statics.bones)
+                ])
+                .len();
+            if prior.features() != features {
+                return Err(LearnError::Mismatch(format!(
+                    "{}: a {} prior of {} shape and pose features; this body has {features} \
+                     ({} bones)",
+                    path.display(),
+                    config.model.prior.name(),
+                    prior.features(),
+                    statics.bones
+                )));
+            }
             p.pre = p.pre.with_prior(Arc::new(Prior::of(prior)));
         }
         p.info = info;

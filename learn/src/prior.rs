@@ -54,6 +54,14 @@ impl PriorMap {
         }
     }
 
+    /// Features it takes ([`features`]: the shape and 9 per bone).
+    pub fn features(&self) -> usize {
+        match self {
+            PriorMap::Linear(m) => m.weights().nrows() - 1,
+            PriorMap::Kernel(m) => m.features(),
+        }
+    }
+
     /// The file's bytes.
     pub fn encode(&self) -> Vec<u8> {
         match self {
@@ -181,9 +189,11 @@ impl Prior {
                 .map(|(c, l, e)| (format!("width {c}, strength {l}"), *e))
                 .collect();
             let picks = fit.picks();
-            say("the dual weights of the full fit");
+            say("the map at rank 256 for one drape at a time");
             let map = fit.map(crate::kernel::RANK);
-            let held = cross_fit(&rows, picks, FOLDS, &mut |m| say(m)).ok_or_else(unsolvable)?;
+            drop(fit);
+            let held = cross_fit(&rows, picks, FOLDS, &mut |m| say(m))
+                .map_err(|e| LearnError::Mismatch(format!("the kernel prior: {e}")))?;
             (PriorMap::Kernel(map), held, tried)
         } else {
             let n = data.statics.garment_vertices.len();
@@ -196,21 +206,26 @@ impl Prior {
                 folds[(r.body % FOLDS) as usize].add(&r.x, &r.d);
             }
             let (model, tried) = crate::linear::fit(&total, &validation).ok_or_else(unsolvable)?;
+            // A fold holding every sample has nothing to fit without it (an in-sample
+            // prior would be far better on the training drapes than on new bodies).
+            if let Some(f) = folds.iter().position(|f| f.samples() == total.samples()) {
+                return Err(LearnError::Mismatch(format!(
+                    "the linear prior: all {} training drapes come from bodies of one fold \
+                     (body index % {FOLDS} = {f}): cross-fitting needs bodies in two folds",
+                    total.samples()
+                )));
+            }
             let fold_models: Vec<Option<Linear>> = folds
                 .iter()
-                .map(|f| {
-                    // A fold holding every sample (one body) has nothing to fit without it.
-                    (f.samples() < total.samples())
-                        .then(|| total.without(f).solve(model.lambda))
-                        .flatten()
-                })
-                .collect();
+                .map(|f| (f.samples() > 0).then(|| total.without(f).solve(model.lambda)))
+                .map(|m| m.map(|m| m.ok_or_else(unsolvable)).transpose())
+                .collect::<Result<_, _>>()?;
             let held = rows
                 .iter()
                 .map(|r| {
                     fold_models[(r.body % FOLDS) as usize]
                         .as_ref()
-                        .unwrap_or(&model)
+                        .expect("the fold of a row has rows")
                         .displacement(&r.x)
                 })
                 .collect();

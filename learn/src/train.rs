@@ -408,13 +408,27 @@ fn fit_prior(
         prior.model.describe(),
         tried.join(", ")
     );
+    // A resumed run finds its file: it must be this fit, or inference would use another
+    // prior than training did.
     let path = run.join("prior.safetensors");
-    if !path.exists() {
-        sim::io::write_all_or_nothing(&[(&path, &prior.model.encode())]).map_err(|e| {
-            LearnError::Io {
-                path: e.path.clone(),
-                source: e.source,
-            }
+    let bytes = prior.model.encode();
+    if path.exists() {
+        let kept = std::fs::read(&path).map_err(|source| LearnError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        if kept != bytes {
+            return Err(LearnError::Mismatch(format!(
+                "{} differs from the {} prior fitted again from the data: the data or the \
+                 program changed since the run started",
+                path.display(),
+                kind.name()
+            )));
+        }
+    } else {
+        sim::io::write_all_or_nothing(&[(&path, &bytes)]).map_err(|e| LearnError::Io {
+            path: e.path.clone(),
+            source: e.source,
         })?;
     }
     Ok(std::sync::Arc::new(prior))
