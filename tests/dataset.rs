@@ -670,8 +670,8 @@ fn the_learning_curve_fits_on_shares_of_the_training_bodies() {
         }
         let lambda = p["linear_lambda"].as_f64().unwrap();
         assert!(learn::linear::LAMBDAS.contains(&lambda), "{p}");
-        assert!(eval::curve::KERNEL_WIDTHS.contains(&p["kernel_width"].as_f64().unwrap()));
-        assert!(eval::curve::KERNEL_LAMBDAS.contains(&p["kernel_lambda"].as_f64().unwrap()));
+        assert!(learn::kernel::WIDTHS.contains(&p["kernel_width"].as_f64().unwrap()));
+        assert!(learn::kernel::LAMBDAS.contains(&p["kernel_lambda"].as_f64().unwrap()));
     }
     for (args, says) in [
         (vec!["--shares", "0"], "(0, 1]"),
