@@ -11,8 +11,12 @@ use crate::DatasetError;
 use crate::sampling::ShapeRanges;
 
 /// The built-in dataset configs, by name.
-pub const BUILT_IN: [(&str, &str); 14] = [
+pub const BUILT_IN: [(&str, &str); 15] = [
     ("tiny", include_str!("../../configs/datasets/tiny.toml")),
+    (
+        "tiny-heldout",
+        include_str!("../../configs/datasets/tiny-heldout.toml"),
+    ),
     ("small", include_str!("../../configs/datasets/small.toml")),
     (
         "cpu-reference",
