@@ -548,7 +548,7 @@ fn tiny_heldout_run_halves_the_dqs_warps_test_edist() {
     let steps = std::fs::read_to_string(run_dir.join("steps.csv")).unwrap();
     let seconds: f64 = steps
         .lines()
-        .last()
+        .next_back()
         .unwrap()
         .split(',')
         .nth(3)
