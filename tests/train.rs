@@ -543,6 +543,12 @@ fn tiny_heldout_run_halves_the_dqs_warps_test_edist() {
         &[],
     );
     assert!(ok && text.contains("linear prior:"), "{text}");
+    // At least one epoch within the cap (an epoch takes about 16 s here, 32 s beside
+    // another training test), so there is a best checkpoint to evaluate.
+    assert!(
+        run_dir.join("best.bpk").exists(),
+        "no epoch finished within the 90 s cap: {text}"
+    );
     // Training time as the run recorded it: the cap stops it after the step that passes
     // 90 s, so at most one step (well under a second at these widths) over.
     let steps = std::fs::read_to_string(run_dir.join("steps.csv")).unwrap();
@@ -568,7 +574,12 @@ fn tiny_heldout_run_halves_the_dqs_warps_test_edist() {
     assert!(ok, "{text}");
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(report.join("metrics.json")).unwrap()).unwrap();
-    assert_eq!(m["samples_evaluated"], 20);
+    let tests = dataset::reader::Dataset::open(&data)
+        .unwrap()
+        .samples(dataset::config::Split::Test)
+        .count();
+    assert!(tests >= 18, "{tests} test drapes converged of 20");
+    assert_eq!(m["samples_evaluated"], tests);
     let edist = |method: &str| m["summaries"][method]["edist_cm"][0].as_f64().unwrap();
     let inside = |method: &str| {
         m["summaries"][method]["interpenetration"][0]

@@ -359,6 +359,12 @@ mod tests {
             let c = DatasetConfig::load(name).unwrap();
             assert_eq!(c.name, name);
         }
+        let c = DatasetConfig::load("tiny-heldout").unwrap();
+        assert_eq!((c.bodies.train, c.bodies.val, c.bodies.test), (100, 10, 10));
+        assert_eq!(
+            (c.garment.as_str(), c.resolution, c.poses_per_body),
+            ("tshirt", 3000, 2)
+        );
         let c = DatasetConfig::load("cpu-reference").unwrap();
         assert_eq!((c.bodies.train, c.bodies.val, c.bodies.test), (200, 10, 40));
         assert_eq!(

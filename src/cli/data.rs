@@ -14,7 +14,7 @@ use super::Context;
 /// `drape gen`.
 #[derive(Debug, Args)]
 pub struct GenArgs {
-    /// Dataset config: a built-in name (tiny, small, cpu-reference, cpu-reference-sweater,
+    /// Dataset config: a built-in name (tiny, tiny-heldout, small, cpu-reference, cpu-reference-sweater,
     /// cpu-reference-dress, cpu-reference-jeans, cpu-repro-tshirt, cpu-repro-sweater,
     /// cpu-repro-dress, cpu-repro-jeans, paper-tshirt, paper-sweater, paper-dress,
     /// paper-jeans) or a TOML file.
