@@ -22,6 +22,15 @@ fn config(dir: &Path, epochs: usize, variant: &str, extra: &str) -> std::path::P
     p
 }
 
+/// A temporary folder holding the built-in dataset `name` as `drape gen` makes it, in `data/`.
+fn generated(name: &str) -> (tempfile::TempDir, std::path::PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let (ok, text) = run(drape().args(["gen", name, "-o"]).arg(&data));
+    assert!(ok, "{text}");
+    (tmp, data)
+}
+
 /// `drape train CONFIG --data DATA -o RUN [extra...]`.
 fn train(config: &Path, data: &Path, run_dir: &Path, extra: &[&std::ffi::OsStr]) -> (bool, String) {
     run(drape()
@@ -36,10 +45,7 @@ fn train(config: &Path, data: &Path, run_dir: &Path, extra: &[&std::ffi::OsStr])
 
 #[test]
 fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&data));
-    assert!(ok, "{text}");
+    let (tmp, data) = generated("tiny");
 
     let run_dir = tmp.path().join("run");
     let cfg = config(tmp.path(), 8, "local", "");
@@ -460,10 +466,7 @@ fn kernel_prior_run() {
 fn prior_run(kind: learn::config::PriorKind) {
     use learn::linear::features_from_params;
     use learn::prior::{Prior, PriorMap};
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&data));
-    assert!(ok, "{text}");
+    let (tmp, data) = generated("tiny");
     let run_dir = tmp.path().join("run");
     let name = kind.name();
     let cfg = config(tmp.path(), 2, "local", &format!("\nprior = \"{name}\""));
@@ -527,10 +530,7 @@ fn prior_run(kind: learn::config::PriorKind) {
 /// the linear map's 10.3%).
 #[test]
 fn tiny_heldout_run_halves_the_dqs_warps_test_edist() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    let (ok, text) = run(drape().args(["gen", "tiny-heldout", "-o"]).arg(&data));
-    assert!(ok, "{text}");
+    let (tmp, data) = generated("tiny-heldout");
     let cfg =
         learn::config::TrainConfig::load(Path::new("configs/train/tiny-heldout.toml")).unwrap();
     assert_eq!(cfg.wall_clock_minutes, 1.5, "the issue's budget is 90 s");
