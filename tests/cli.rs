@@ -509,6 +509,88 @@ fn garments_build_once_warp_and_drape_by_name() {
         serde_json::from_str(&std::fs::read_to_string(p("d.json")).unwrap()).unwrap();
     assert_eq!(report["converged"], true);
 
+    // The warp is a state of the template: the simulator starts from it with the body
+    // already posed (PBS-dagger). OBJs read back number vertices in order of first use,
+    // which a built template's numbering is not; the state is mapped back onto it.
+    let warm = [
+        "--assets",
+        a,
+        "sim",
+        "--garment",
+        "tshirt",
+        "--resolution",
+        "1000",
+        "--height",
+        "0.6",
+        "--pose",
+        "random:3",
+        "--warm-start",
+        &w_obj,
+        "-o",
+        &p("ws.obj"),
+        "--report",
+        &p("ws.json"),
+    ];
+    let o = drape(&warm);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(p("ws.json")).unwrap()).unwrap();
+    assert_eq!(report["converged"], true, "{report}");
+    assert_eq!(report["morph_frames"], 0, "{report}");
+    // Written back in the template's numbering: the same face records as the template's.
+    let faces = |f: &str| {
+        std::fs::read_to_string(f)
+            .unwrap()
+            .lines()
+            .filter(|l| l.starts_with("f "))
+            .map(str::to_string)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(faces(&p("ws.obj")), faces(&t_obj));
+
+    // `garment check --from-warp` drapes each sample the same way and says so.
+    let check = |extra: &[&str]| {
+        let args = [
+            &[
+                "--assets",
+                a,
+                "garment",
+                "check",
+                "tshirt",
+                "--resolution",
+                "1000",
+                "--samples",
+                "1",
+                "--seed",
+                "3",
+                "--one-size",
+            ][..],
+            extra,
+        ]
+        .concat();
+        drape(&args)
+    };
+    let o = check(&["--from-warp", "--report", &p("c.json")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("each from its DQS warp"),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    let c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(p("c.json")).unwrap()).unwrap();
+    assert_eq!(c["summary"]["start"], "dqs_warp", "{c}");
+    assert_eq!(c["summary"]["converged_share"], 1.0, "{c}");
+    // How far the drape moved from the warp it started from: the DQS baseline's error.
+    let e = c["drapes"][0]["warp_edist_cm"].as_f64().unwrap();
+    assert!(e > 0.05 && e < 10.0, "{c}");
+    let o = check(&["--from-warp", "--warp-only"]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("cannot be used with"),
+        "{}",
+        stderr(&o)
+    );
+
     // The gallery: a row for the canonical body and one per sample, three pictures each;
     // `--strain` colours the drapes by strain and adds the colour bar below.
     let gallery = |png: &str, strain: bool| {

@@ -78,6 +78,10 @@ enum GarmentCommand {
         /// 0 to 10%, as `drape sim --strain-png`) and add the colour bar.
         #[arg(long)]
         strain: bool,
+        /// Start each drape from its DQS warp with the body already posed (PBS-dagger, as
+        /// `drape garment check --from-warp`) instead of morphing the body.
+        #[arg(long)]
+        from_warp: bool,
         /// Output PNG.
         #[arg(short = 'o', long, value_name = "FILE.png")]
         output: PathBuf,
@@ -108,6 +112,11 @@ enum GarmentCommand {
         /// Only the DQS warps, no drapes (fast: checks the skinning weights).
         #[arg(long)]
         warp_only: bool,
+        /// Start each drape from its DQS warp with the body already in the target shape and
+        /// pose (the paper's PBS-dagger protocol, as `drape sim --warm-start` does) instead of
+        /// morphing the body from the one the template was made for.
+        #[arg(long, conflicts_with = "warp_only")]
+        from_warp: bool,
         /// Drape the base size on every body, even for a garment graded in sizes (by default
         /// each body wears the size its measurements pick).
         #[arg(long)]
@@ -383,11 +392,27 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             seed,
             corners,
             warp_only,
+            from_warp,
             one_size,
             config,
             report,
         } => check(
-            ctx, &name, resolution, samples, seed, corners, warp_only, one_size, config, report,
+            ctx,
+            &name,
+            resolution,
+            samples,
+            seed,
+            corners,
+            if warp_only {
+                CheckMode::WarpOnly
+            } else if from_warp {
+                CheckMode::FromWarp
+            } else {
+                CheckMode::Morph
+            },
+            one_size,
+            config,
+            report,
         ),
         GarmentCommand::Gallery {
             name,
@@ -396,6 +421,7 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             seed,
             cell_height,
             strain,
+            from_warp,
             output,
         } => gallery(
             ctx,
@@ -406,6 +432,7 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                 seed,
                 cell_height,
                 strain,
+                from_warp,
             },
             &output,
         ),
@@ -521,6 +548,17 @@ fn mean_of(rows: &[serde_json::Value], key: &str) -> Option<f64> {
 }
 
 #[allow(clippy::too_many_arguments)]
+/// What `drape garment check` does on each body and pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum CheckMode {
+    /// The drape as datasets make it: the body morphs from the template's reference body.
+    Morph,
+    /// The drape from the DQS warp on the posed body (PBS-dagger).
+    FromWarp,
+    /// Only the DQS warp.
+    WarpOnly,
+}
+
 fn check(
     ctx: &Context,
     name: &str,
@@ -528,7 +566,7 @@ fn check(
     samples: u64,
     seed: u64,
     corners: bool,
-    warp_only: bool,
+    mode: CheckMode,
     one_size: bool,
     config: Option<PathBuf>,
     report: Option<PathBuf>,
@@ -604,10 +642,11 @@ fn check(
         "{name}: {} vertices, {} drapes ({}), {}, {}, friction {friction}{}, both cores across drapes",
         t.len(),
         cases.len(),
-        if corners {
-            "corner bodies, rest pose"
-        } else {
-            "sampled bodies and poses"
+        match (corners, mode == CheckMode::FromWarp) {
+            (true, false) => "corner bodies, rest pose",
+            (false, false) => "sampled bodies and poses",
+            (true, true) => "corner bodies, rest pose, each from its DQS warp",
+            (false, true) => "sampled bodies and poses, each from its DQS warp",
         },
         if wardrobe.graded() {
             format!(
@@ -641,7 +680,7 @@ fn check(
             let posed = target.pose(pose);
             let warp = t.warp(reference, &target, &posed);
             let warp_over = overstretched(t, &warp, 0.3, &|_| true);
-            if warp_only {
+            if mode == CheckMode::WarpOnly {
                 bar.inc(1);
                 return Ok(serde_json::json!({
                     "case": label,
@@ -653,7 +692,11 @@ fn check(
                     }),
                 }));
             }
-            let mut d = drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?;
+            let mut d = if mode == CheckMode::FromWarp {
+                drape_from_warp(cloth, &warp, &posed.vertices, &model, &config, false)
+            } else {
+                drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?
+            };
             d.judge_slide(&top, &warp);
             // Where the verification's edges through the body cross it: the bone that
             // weighs most on the body triangle nearest to each edge's deepest point.
@@ -680,6 +723,10 @@ fn check(
                 "edges_through_body_deepest_mm": r.edges_through_body.max_depth * 1e3,
                 "edges_doubled": r.strain.doubled,
                 "top_drop_cm": r.top_drop.map(|x| x * 100.0),
+                // The DQS baseline's error on this drape (Edist of the warp, cm).
+                "warp_edist_cm": 100.0
+                    * d.positions.iter().zip(&warp).map(|(a, b)| a.distance(*b) as f64).sum::<f64>()
+                    / warp.len().max(1) as f64,
                 "warp_edges_over_30pct": warp_over,
                 "polish_strain_p95_before": r.polish.map(|p| p.strain_p95_before),
                 "polish_mean_move_mm": r.polish.map(|p| p.mean_move * 1e3),
@@ -691,7 +738,7 @@ fn check(
         .collect();
     bar.finish_and_clear();
     let rows: Vec<serde_json::Value> = rows.into_iter().collect::<Result<_, _>>()?;
-    if warp_only {
+    if mode == CheckMode::WarpOnly {
         let w: Vec<f64> = rows
             .iter()
             .map(|r| r["warp_edges_over_30pct"].as_f64().unwrap_or(0.0))
@@ -769,6 +816,7 @@ fn check(
         "garment": name,
         "vertices": t.len(),
         "drapes": rows.len(),
+        "start": if mode == CheckMode::FromWarp { "dqs_warp" } else { "morph" },
         "substeps": stepped.substeps,
         "settle_substeps": stepped.settle_substeps,
         "friction": f32_as_written(friction),
@@ -779,6 +827,7 @@ fn check(
         "share_p95_below_3pct": p95.iter().filter(|&&x| x < 0.03).count() as f64 / n,
         "share_p95_below_5pct": p95.iter().filter(|&&x| x < 0.05).count() as f64 / n,
         "slide_threshold_cm": sim::cloth::drape::MAX_TOP_DROP * 100.0,
+        "warp_edist_cm_mean": f("warp_edist_cm").iter().sum::<f64>() / n,
         "top_drop_cm_max": f("top_drop_cm").into_iter().fold(f64::NEG_INFINITY, f64::max),
         "share_slid": rows
             .iter()
@@ -803,7 +852,7 @@ fn check(
         "wall_seconds": t0.elapsed().as_secs_f64(),
     });
     println!(
-        "converged {:.0}%; deepest {:.2} mm; strain p95 mean {:.2}%, max {:.2}%, below 3% in {:.0}% and below 5% in {:.0}% of drapes; slid down (top opening over {:.0} cm below the warp's) in {:.0}%; {:.2} s per drape (one thread each); DQS warp stretches {:.2}% of edges by >30% on average (max {:.2}%); {:.0} s in all",
+        "converged {:.0}%; deepest {:.2} mm; strain p95 mean {:.2}%, max {:.2}%, below 3% in {:.0}% and below 5% in {:.0}% of drapes; slid down (top opening over {:.0} cm below the warp's) in {:.0}%; {:.2} s per drape (one thread each); DQS warp {:.2} cm from the drape on average (its Edist), stretches {:.2}% of edges by >30% on average (max {:.2}%); {:.0} s in all",
         summary["converged_share"].as_f64().unwrap_or(0.0) * 100.0,
         summary["deepest_mm"].as_f64().unwrap_or(0.0),
         summary["strain_p95_mean"].as_f64().unwrap_or(0.0) * 100.0,
@@ -813,6 +862,7 @@ fn check(
         summary["slide_threshold_cm"].as_f64().unwrap_or(0.0),
         summary["share_slid"].as_f64().unwrap_or(0.0) * 100.0,
         summary["seconds_per_drape_mean"].as_f64().unwrap_or(0.0),
+        summary["warp_edist_cm_mean"].as_f64().unwrap_or(0.0),
         summary["warp_edges_over_30pct_mean"]
             .as_f64()
             .unwrap_or(0.0)
@@ -842,7 +892,7 @@ fn check(
                 * 100.0,
         );
     }
-    if !warp_only {
+    if mode != CheckMode::WarpOnly {
         println!(
             "edges through the body (both ends outside, 1 mm deep or more): {:.0} in {:.0}% of drapes; edges at double their rest length or more: {:.0} in {:.0}% of drapes",
             summary["edges_through_body"].as_f64().unwrap_or(0.0),
@@ -937,13 +987,14 @@ fn sample(
     )
 }
 
-/// What a gallery shows: how many sampled rows from which seed, at what size, and whether
-/// the drapes are coloured by strain.
+/// What a gallery shows: how many sampled rows from which seed, at what size, whether
+/// the drapes are coloured by strain and whether they start from the DQS warp.
 struct Rows {
     samples: u64,
     seed: u64,
     cell_height: u32,
     strain: bool,
+    from_warp: bool,
 }
 
 fn gallery(
@@ -958,6 +1009,7 @@ fn gallery(
         seed,
         cell_height,
         strain,
+        from_warp,
     } = rows;
     use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer, RenderOptions};
     use sim::cloth::SimConfig;
@@ -1016,7 +1068,11 @@ fn gallery(
         let target = model.shape(&shape)?;
         let posed = target.pose(&pose.pose);
         let warp = sized.warp(&reference, &target, &posed);
-        let mut d = drape_from_reference(&model, &cloth, sized, shape, &pose.pose, &config, true)?;
+        let mut d = if from_warp {
+            drape_from_warp(&cloth, &warp, &posed.vertices, &model, &config, true)
+        } else {
+            drape_from_reference(&model, &cloth, sized, shape, &pose.pose, &config, true)?
+        };
         d.judge_slide(&top, &warp);
         let r = &d.report;
         println!(
@@ -1066,6 +1122,24 @@ fn gallery(
         output.display()
     );
     Ok(())
+}
+
+/// Drapes a template from its DQS warp `warp` on the body already in its target shape and
+/// pose `posed` (the paper's PBS-dagger; `drape sim --warm-start` with a warp); `parallel`
+/// lets the drape use rayon's threads.
+pub fn drape_from_warp(
+    cloth: &sim::cloth::ClothModel,
+    warp: &[glam::Vec3],
+    posed: &[glam::Vec3],
+    model: &BodyModel,
+    config: &sim::cloth::SimConfig,
+    parallel: bool,
+) -> sim::cloth::DrapeResult {
+    let still = sim::cloth::drape::StaticBody {
+        vertices: posed.to_vec(),
+        triangles: model.triangles.clone(),
+    };
+    sim::cloth::drape::drape(cloth, warp, &still, config, parallel, &mut |_| {})
 }
 
 /// Drapes a template from the body it is made for (the canonical body, or a size's

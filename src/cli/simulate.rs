@@ -113,23 +113,25 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
             (mesh.vertices.clone(), &morph)
         }
         Some(path) => {
-            let state = TriMesh::read_obj(path)?;
-            if state.triangles != mesh.triangles {
+            let read = TriMesh::read_obj(path)?;
+            let Some(state) = mesh.positions_in_my_order(&read) else {
                 bail!(
-                    "warm start {}: its faces differ from the garment template's ({} and {} triangles); it must be a state of the same mesh",
+                    "warm start {}: its faces differ from the garment template's ({} and {} triangles, {} and {} vertices); it must be a state of the same mesh",
                     path.display(),
-                    state.triangles.len(),
-                    mesh.triangles.len()
+                    read.triangles.len(),
+                    mesh.triangles.len(),
+                    read.vertices.len(),
+                    mesh.vertices.len()
                 );
-            }
+            };
             let posed = target.pose(&resolved.pose).vertices;
             let body = BodyCollider::new(&posed, &model.triangles, config.margin);
-            drape::check_placement(&body, &state.vertices)?;
+            drape::check_placement(&body, &state)?;
             still = drape::StaticBody {
                 vertices: posed,
                 triangles: model.triangles.clone(),
             };
-            (state.vertices, &still)
+            (state, &still)
         }
     };
 

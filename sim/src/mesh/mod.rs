@@ -122,6 +122,38 @@ impl TriMesh {
         }
     }
 
+    /// Positions of a state of this mesh read back from an OBJ, in this mesh's vertex
+    /// numbering: [`TriMesh::read_obj`] numbers vertices in order of first use by the faces,
+    /// which a built-in template's numbering is not. `None` when `read` is not a state of
+    /// this mesh: another face count, faces that do not map one to one onto this mesh's in
+    /// the same order, or a vertex of this mesh no face uses.
+    pub fn positions_in_my_order(&self, read: &TriMesh) -> Option<Vec<Vec3>> {
+        if read.triangles.len() != self.triangles.len()
+            || read.vertices.len() != self.vertices.len()
+        {
+            return None;
+        }
+        let mut from = vec![u32::MAX; self.vertices.len()];
+        let mut taken = vec![false; read.vertices.len()];
+        for (mine, theirs) in self.triangles.iter().zip(&read.triangles) {
+            for (&i, &j) in mine.iter().zip(theirs) {
+                let slot = &mut from[i as usize];
+                if *slot == u32::MAX {
+                    let t = taken.get_mut(j as usize)?;
+                    if *t {
+                        return None;
+                    }
+                    (*slot, *t) = (j, true);
+                } else if *slot != j {
+                    return None;
+                }
+            }
+        }
+        from.iter()
+            .map(|&j| read.vertices.get(j as usize).copied())
+            .collect()
+    }
+
     /// The mesh as Wavefront OBJ text (`v` and `f` records, 1-based indices).
     pub fn to_obj(&self, header: &str) -> String {
         let mut s = String::with_capacity(self.vertices.len() * 40 + self.triangles.len() * 24);
@@ -193,6 +225,26 @@ mod tests {
         let back = TriMesh::read_obj(&p).unwrap();
         assert_eq!(back.triangles, ordered.triangles);
         assert_eq!(ordered.in_first_use_order(), ordered);
+        // A state of a mesh not in first-use order maps back onto its numbering.
+        let mut moved = m.clone();
+        for v in &mut moved.vertices {
+            *v += Vec3::new(0.5, -1.0, 2.0);
+        }
+        std::fs::write(&p, moved.to_obj("moved")).unwrap();
+        let back = TriMesh::read_obj(&p).unwrap();
+        assert_ne!(
+            back.triangles, m.triangles,
+            "the test mesh must not be in first-use order"
+        );
+        assert_eq!(m.positions_in_my_order(&back).unwrap(), moved.vertices);
+        assert_eq!(m.positions_in_my_order(&m).unwrap(), m.vertices);
+        // Faces of another mesh, or in another order, are not a state of it.
+        let mut swapped = back.clone();
+        swapped.triangles.swap(0, 1);
+        assert!(m.positions_in_my_order(&swapped).is_none());
+        let mut fewer = back.clone();
+        fewer.triangles.pop();
+        assert!(m.positions_in_my_order(&fewer).is_none());
         std::fs::write(&p, "v 0 0 0\nv 1 0 0\n").unwrap();
         assert!(
             TriMesh::read_obj(&p)
