@@ -487,54 +487,33 @@ fn garments_build_once_warp_and_drape_by_name() {
         count(Path::new(&t_obj), "f ")
     );
 
-    // And the simulator drapes it by name.
-    let sim = [
-        "--assets",
-        a,
-        "sim",
-        "--garment",
-        "tshirt",
-        "--resolution",
-        "1000",
-        "--pose",
-        "random:3",
-        "-o",
-        &p("d.obj"),
-        "--report",
-        &p("d.json"),
-    ];
-    let o = drape(&sim);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(p("d.json")).unwrap()).unwrap();
+    // And the simulator drapes it by name: from the template with the body morphing, or
+    // from a state such as the warp (PBS-dagger). OBJs read back number vertices in order
+    // of first use, which a built template's numbering is not; the state is mapped back
+    // onto it.
+    let sim = |body: &[&str], name: &str| {
+        let (obj, json) = (p(&format!("{name}.obj")), p(&format!("{name}.json")));
+        let args = [
+            &[
+                "--assets",
+                a,
+                "sim",
+                "--garment",
+                "tshirt",
+                "--resolution",
+                "1000",
+            ][..],
+            body,
+            &["--pose", "random:3", "-o", &obj, "--report", &json],
+        ]
+        .concat();
+        let o = drape(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(json).unwrap()).unwrap()
+    };
+    let report = sim(&[], "d");
     assert_eq!(report["converged"], true);
-
-    // The warp is a state of the template: the simulator starts from it with the body
-    // already posed (PBS-dagger). OBJs read back number vertices in order of first use,
-    // which a built template's numbering is not; the state is mapped back onto it.
-    let warm = [
-        "--assets",
-        a,
-        "sim",
-        "--garment",
-        "tshirt",
-        "--resolution",
-        "1000",
-        "--height",
-        "0.6",
-        "--pose",
-        "random:3",
-        "--warm-start",
-        &w_obj,
-        "-o",
-        &p("ws.obj"),
-        "--report",
-        &p("ws.json"),
-    ];
-    let o = drape(&warm);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(p("ws.json")).unwrap()).unwrap();
+    let report = sim(&["--height", "0.6", "--warm-start", &w_obj], "ws");
     assert_eq!(report["converged"], true, "{report}");
     assert_eq!(report["morph_frames"], 0, "{report}");
     // Written back in the template's numbering: the same face records as the template's.
