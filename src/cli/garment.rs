@@ -547,7 +547,6 @@ fn mean_of(rows: &[serde_json::Value], key: &str) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
-#[allow(clippy::too_many_arguments)]
 /// What `drape garment check` does on each body and pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum CheckMode {
@@ -559,6 +558,7 @@ enum CheckMode {
     WarpOnly,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn check(
     ctx: &Context,
     name: &str,
