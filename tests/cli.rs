@@ -527,6 +527,39 @@ fn garments_build_once_warp_and_drape_by_name() {
     };
     assert_eq!(faces(&p("ws.obj")), faces(&t_obj));
 
+    // In the size a heavy man's measurements pick, starting on that size's reference body;
+    // a size the garment does not come in is refused with the list.
+    let report = sim(
+        &["--gender", "1", "--weight", "0.9", "--size", "auto"],
+        "sz",
+    );
+    assert_eq!(report["converged"], true, "{report}");
+    let size = report["size"].as_str().unwrap_or_default();
+    assert!(size.starts_with("men-"), "{report}");
+    assert!(
+        std::fs::read_to_string(p("sz.obj"))
+            .unwrap()
+            .contains(&format!("size {size}"))
+    );
+    let o = drape(&[
+        "--assets",
+        a,
+        "sim",
+        "--garment",
+        "tshirt",
+        "--resolution",
+        "1000",
+        "--size",
+        "XXXL",
+        "-o",
+        &p("x.obj"),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("comes in M, "),
+        "{}",
+        stderr(&o)
+    );
+
     // `garment check --from-warp` drapes each sample the same way and says so.
     let check = |extra: &[&str]| {
         let args = [

@@ -202,6 +202,14 @@ impl<'m> Wardrobe<'m> {
         &self.base
     }
 
+    /// The size names of the chart (none for a one-size garment).
+    pub fn sizes(&self) -> Vec<String> {
+        self.chart
+            .as_ref()
+            .map(|c| c.sizes.iter().map(|(n, _)| n.clone()).collect())
+            .unwrap_or_default()
+    }
+
     /// The size a body of `shape` wears (the base for a one-size garment).
     pub fn size_for(&self, shape: &ShapeParams) -> anyhow::Result<String> {
         Ok(match &self.chart {

@@ -51,6 +51,12 @@ pub struct SimArgs {
     /// already in its target shape and pose, instead of morphing from the canonical body.
     #[arg(long, value_name = "FILE.obj")]
     warm_start: Option<PathBuf>,
+    /// Size of a garment graded in sizes: `auto` for the size the body's measurements pick
+    /// (as `drape garment check` and datasets with `sizes = true` do), or a size's name
+    /// (`drape garment list` names them). Default: the base size M on every body. The drape
+    /// starts on the size's reference body, which morphs to the target.
+    #[arg(long, value_name = "auto|NAME")]
+    size: Option<String>,
     /// Threads for contact detection and collision (default: all cores).
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
@@ -95,21 +101,50 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
     let resolved = pose_spec::resolve(&args.pose, &target, &library)?;
-    let (mesh, cloth) = garment(&args.garment, args.resolution, ctx, &canonical, &config)?;
+    // The size: the base template on the canonical body, or a size on its reference body.
+    let (mesh, cloth, size, reference) = match &args.size {
+        None => {
+            let (mesh, cloth) = garment(&args.garment, args.resolution, ctx, &canonical, &config)?;
+            (mesh, cloth, None, ShapeParams::default())
+        }
+        Some(wanted) => {
+            if args.garment.ends_with(".obj") || args.garment == "tube" {
+                bail!("--size: {} comes in one size only", args.garment);
+            }
+            let mut wardrobe =
+                super::garment::Wardrobe::new(ctx, &args.garment, args.resolution, &model, false)?;
+            let sizes = wardrobe.sizes();
+            if sizes.is_empty() {
+                bail!("--size: garment {} is not graded in sizes", args.garment);
+            }
+            let size = if wanted == "auto" {
+                wardrobe.size_for(&params)?
+            } else if sizes.contains(wanted) {
+                wanted.clone()
+            } else {
+                bail!(
+                    "--size {wanted}: garment {} comes in {} (or auto)",
+                    args.garment,
+                    sizes.join(", ")
+                );
+            };
+            let t = wardrobe.get(&size)?;
+            let cloth = t.cloth(&config)?;
+            (t.mesh.clone(), cloth, Some(size), t.reference())
+        }
+    };
+    if let Some(size) = &size {
+        println!("{}: size {size}", args.garment);
+    }
     let morph;
     let still;
     let (start, motion): (Vec<_>, &(dyn drape::BodyMotion + Sync)) = match &args.warm_start {
         None => {
+            let start_shape = model.shape(&reference)?;
             let start_body =
-                BodyCollider::new(&canonical.vertices, &model.triangles, config.margin);
+                BodyCollider::new(&start_shape.vertices, &model.triangles, config.margin);
             drape::check_placement(&start_body, &mesh.vertices)?;
-            morph = BodyMorph::new(
-                &model,
-                ShapeParams::default(),
-                params,
-                resolved.pose.clone(),
-                &config,
-            )?;
+            morph = BodyMorph::new(&model, reference, params, resolved.pose.clone(), &config)?;
             (mesh.vertices.clone(), &morph)
         }
         Some(path) => {
@@ -162,9 +197,12 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
 
     let draped = TriMesh::new(result.positions.clone(), mesh.triangles.clone());
     let header = format!(
-        "drape sim {}: garment {}, pose {}\n{}",
+        "drape sim {}: garment {}{}, pose {}\n{}",
         env!("CARGO_PKG_VERSION"),
         args.garment,
+        size.as_ref()
+            .map(|s| format!(", size {s}"))
+            .unwrap_or_default(),
         resolved.description,
         match &r.failure {
             None => "converged".to_string(),
@@ -182,7 +220,11 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
         (Some(_), Some(body)) => Some(strain_map(&cloth, &draped, body, &model.triangles)?),
         _ => None,
     };
-    let json = serde_json::to_string_pretty(r)?;
+    let mut json = serde_json::to_value(r)?;
+    if let Some(size) = &size {
+        json["size"] = serde_json::Value::from(size.as_str());
+    }
+    let json = serde_json::to_string_pretty(&json)?;
     let mut files: Vec<(&Path, &[u8])> = vec![(&args.output, obj.as_bytes())];
     if let (Some(p), Some(b)) = (&args.png, &png) {
         files.push((p, b));
