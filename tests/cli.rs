@@ -491,18 +491,19 @@ fn garments_build_once_warp_and_drape_by_name() {
     // from a state such as the warp (PBS-dagger). OBJs read back number vertices in order
     // of first use, which a built template's numbering is not; the state is mapped back
     // onto it.
+    let tshirt = [
+        "--assets",
+        a,
+        "sim",
+        "--garment",
+        "tshirt",
+        "--resolution",
+        "1000",
+    ];
     let sim = |body: &[&str], name: &str| {
         let (obj, json) = (p(&format!("{name}.obj")), p(&format!("{name}.json")));
         let args = [
-            &[
-                "--assets",
-                a,
-                "sim",
-                "--garment",
-                "tshirt",
-                "--resolution",
-                "1000",
-            ][..],
+            &tshirt[..],
             body,
             &["--pose", "random:3", "-o", &obj, "--report", &json],
         ]
@@ -541,19 +542,7 @@ fn garments_build_once_warp_and_drape_by_name() {
             .unwrap()
             .contains(&format!("size {size}"))
     );
-    let o = drape(&[
-        "--assets",
-        a,
-        "sim",
-        "--garment",
-        "tshirt",
-        "--resolution",
-        "1000",
-        "--size",
-        "XXXL",
-        "-o",
-        &p("x.obj"),
-    ]);
+    let o = drape(&[&tshirt[..], &["--size", "XXXL", "-o", &p("x.obj")]].concat());
     assert!(
         !o.status.success() && stderr(&o).contains("comes in M, "),
         "{}",
