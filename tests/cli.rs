@@ -548,6 +548,34 @@ fn garments_build_once_warp_and_drape_by_name() {
         "{}",
         stderr(&o)
     );
+    // The same size's warp, and a drape warm-started from it in that size.
+    let heavy = ["--gender", "1", "--weight", "0.9", "--size", size];
+    let warp = |body: &[&str], out: &str| {
+        let head = ["--assets", a, "warp", "--garment", "tshirt"];
+        let tail = ["--resolution", "1000", "--pose", "random:3", "-o", out];
+        let o = drape(&[&head[..], body, &tail].concat());
+        assert!(o.status.success(), "{}", stderr(&o));
+        o
+    };
+    let (szw, based) = (p("szw.obj"), p("bw.obj"));
+    let o = warp(&heavy, &szw);
+    assert!(String::from_utf8_lossy(&o.stdout).contains(&format!("size {size}")));
+    // The size's warp is not the base size's on the same body.
+    warp(&heavy[..4], &based);
+    let sized = sim::mesh::TriMesh::read_obj(Path::new(&szw)).unwrap();
+    let base = sim::mesh::TriMesh::read_obj(Path::new(&based)).unwrap();
+    let apart = sized
+        .vertices
+        .iter()
+        .zip(&base.vertices)
+        .map(|(a, b)| a.distance(*b))
+        .sum::<f32>()
+        / base.vertices.len() as f32;
+    assert!(apart > 0.002, "sized and base warps {apart} m apart");
+    let report = sim(&[&heavy[..], &["--warm-start", &szw]].concat(), "szws");
+    assert_eq!(report["converged"], true, "{report}");
+    assert_eq!(report["size"], size, "{report}");
+    assert_eq!(report["morph_frames"], 0, "{report}");
 
     // `garment check --from-warp` drapes each sample the same way and says so.
     let check = |extra: &[&str]| {

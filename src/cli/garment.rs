@@ -148,6 +148,42 @@ fn default_resolution(name: &str, resolution: Option<usize>) -> usize {
     resolution.unwrap_or_else(|| sim::garment::built_in(name).map_or(10_000, |d| d.vertices))
 }
 
+/// The template a command drapes or warps: the base size (`size` None), the size the
+/// measurements of a body of `shape` pick (`auto`), or a named size of a graded garment;
+/// with the size's name when one was asked for. Errors name the sizes there are.
+pub fn sized_template(
+    ctx: &Context,
+    name: &str,
+    resolution: Option<usize>,
+    model: &BodyModel,
+    size: Option<&str>,
+    shape: &ShapeParams,
+) -> anyhow::Result<(Template, Option<String>)> {
+    let Some(wanted) = size else {
+        return Ok((template(ctx, name, resolution, model)?, None));
+    };
+    if name.ends_with(".obj") || name == "tube" {
+        anyhow::bail!("--size: {name} comes in one size only");
+    }
+    let mut wardrobe = Wardrobe::new(ctx, name, resolution, model, false)?;
+    let sizes = wardrobe.sizes();
+    if sizes.is_empty() {
+        anyhow::bail!("--size: garment {name} is not graded in sizes");
+    }
+    let size = if wanted == "auto" {
+        wardrobe.size_for(shape)?
+    } else if sizes.iter().any(|s| s == wanted) {
+        wanted.to_string()
+    } else {
+        anyhow::bail!(
+            "--size {wanted}: garment {name} comes in {} (or auto)",
+            sizes.join(", ")
+        );
+    };
+    let t = wardrobe.get(&size)?.clone();
+    Ok((t, Some(size)))
+}
+
 /// The sizes of a garment as a command uses them: a graded built-in garment's size chart,
 /// with each size's template loaded (or graded and cached) on first use; a garment that is
 /// not graded, or `one_size`, has just its template.
@@ -472,6 +508,10 @@ pub struct WarpArgs {
     /// About this many vertices for a built-in garment (default 10000).
     #[arg(long, value_name = "N")]
     resolution: Option<usize>,
+    /// Size of a garment graded in sizes: `auto` for the size the body's measurements pick,
+    /// or a size's name. Default: the base size M, the network's input.
+    #[arg(long, value_name = "auto|NAME")]
+    size: Option<String>,
     #[command(flatten)]
     target: BodyOutputArgs,
 }
@@ -497,26 +537,34 @@ pub struct BodyOutputArgs {
 pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
     let params = args.target.shape.params()?;
     let (model, library) = load(ctx)?;
-    let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
     let resolved = pose_spec::resolve(&args.target.pose, &target, &library)?;
-    let t = template(ctx, &args.garment, args.resolution, &model)?;
+    let (t, size) = sized_template(
+        ctx,
+        &args.garment,
+        args.resolution,
+        &model,
+        args.size.as_deref(),
+        &params,
+    )?;
+    let reference = model.shape(&t.reference())?;
     let posed = target.pose(&resolved.pose);
     let warped = TriMesh::new(
-        t.warp(&canonical, &target, &posed),
+        t.warp(&reference, &target, &posed),
         t.mesh.triangles.clone(),
     );
     let image = match &args.target.png {
         Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &warped)?)),
         None => None,
     };
+    let sized = size.map(|s| format!(", size {s}")).unwrap_or_default();
     let header = format!(
-        "drape warp: garment {} (DQS), pose {}",
+        "drape warp: garment {}{sized} (DQS), pose {}",
         args.garment, resolved.description
     );
     write_outputs(&warped, &header, Some(&args.target.output), image)?;
     println!(
-        "{}: {} vertices warped to pose {} -> {}",
+        "{}{sized}: {} vertices warped to pose {} -> {}",
         args.garment,
         warped.vertices.len(),
         resolved.description,

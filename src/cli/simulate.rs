@@ -108,29 +108,16 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
             (mesh, cloth, None, ShapeParams::default())
         }
         Some(wanted) => {
-            if args.garment.ends_with(".obj") || args.garment == "tube" {
-                bail!("--size: {} comes in one size only", args.garment);
-            }
-            let mut wardrobe =
-                super::garment::Wardrobe::new(ctx, &args.garment, args.resolution, &model, false)?;
-            let sizes = wardrobe.sizes();
-            if sizes.is_empty() {
-                bail!("--size: garment {} is not graded in sizes", args.garment);
-            }
-            let size = if wanted == "auto" {
-                wardrobe.size_for(&params)?
-            } else if sizes.contains(wanted) {
-                wanted.clone()
-            } else {
-                bail!(
-                    "--size {wanted}: garment {} comes in {} (or auto)",
-                    args.garment,
-                    sizes.join(", ")
-                );
-            };
-            let t = wardrobe.get(&size)?;
-            let cloth = t.cloth(&config)?;
-            (t.mesh.clone(), cloth, Some(size), t.reference())
+            let (t, size) = super::garment::sized_template(
+                ctx,
+                &args.garment,
+                args.resolution,
+                &model,
+                Some(wanted),
+                &params,
+            )?;
+            let (cloth, reference) = (t.cloth(&config)?, t.reference());
+            (t.mesh, cloth, size, reference)
         }
     };
     if let Some(size) = &size {
