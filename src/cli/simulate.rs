@@ -52,9 +52,9 @@ pub struct SimArgs {
     #[arg(long, value_name = "FILE.obj")]
     warm_start: Option<PathBuf>,
     /// Size of a garment graded in sizes: `auto` for the size the body's measurements pick
-    /// (as `drape garment check` and datasets with `sizes = true` do), or a size's name
-    /// (`drape garment list` names them). Default: the base size M on every body. The drape
-    /// starts on the size's reference body, which morphs to the target.
+    /// (as `drape garment check` and datasets with `sizes = true` do), or a size's name (an
+    /// unknown one is refused with the list). Default: the base size M on every body. The
+    /// drape starts on the size's reference body, which morphs to the target.
     #[arg(long, value_name = "auto|NAME")]
     size: Option<String>,
     /// Threads for contact detection and collision (default: all cores).
