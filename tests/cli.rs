@@ -564,14 +564,8 @@ fn garments_build_once_warp_and_drape_by_name() {
     warp(&heavy[..4], &based);
     let sized = sim::mesh::TriMesh::read_obj(Path::new(&szw)).unwrap();
     let base = sim::mesh::TriMesh::read_obj(Path::new(&based)).unwrap();
-    let apart = sized
-        .vertices
-        .iter()
-        .zip(&base.vertices)
-        .map(|(a, b)| a.distance(*b))
-        .sum::<f32>()
-        / base.vertices.len() as f32;
-    assert!(apart > 0.002, "sized and base warps {apart} m apart");
+    let apart = eval::metrics::edist_cm(&sized.vertices, &base.vertices);
+    assert!(apart > 0.2, "sized and base warps {apart} cm apart");
     let report = sim(&[&heavy[..], &["--warm-start", &szw]].concat(), "szws");
     assert_eq!(report["converged"], true, "{report}");
     assert_eq!(report["size"], size, "{report}");

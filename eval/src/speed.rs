@@ -25,7 +25,7 @@ use learn::predict::Predictor;
 use serde::{Deserialize, Serialize};
 use sim::body::pose::Pose;
 use sim::body::{BodyModel, PosedBody, ShapeParams, ShapedBody};
-use sim::cloth::drape::{self, BodyMorph, StaticBody};
+use sim::cloth::drape::{self, BodyMorph};
 use sim::garment::Template;
 
 use crate::evaluate::EvalError;
@@ -354,19 +354,15 @@ pub fn measure(
             &mut |_| {},
         );
         redraper.judge(&mut full, row);
-        let still = StaticBody {
-            vertices: posed.vertices.clone(),
-            triangles: model.triangles.clone(),
-        };
         // PBS-dagger starts from the warp M (the network's input, the base template's
         // warp) with the cloth the dataset draped: the size's rest lengths.
-        let mut dagger = drape::drape(
+        let mut dagger = drape::drape_from_state(
             start.cloth,
             &row.warped,
-            &still,
+            &posed.vertices,
+            &model.triangles,
             &config.sim,
             true,
-            &mut |_| {},
         );
         redraper.judge(&mut dagger, row);
         let t = network_drape(

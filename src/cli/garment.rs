@@ -695,14 +695,18 @@ fn check(
     };
     let friction = t.friction(&config);
     println!(
-        "{name}: {} vertices, {} drapes ({}), {}, {}, friction {friction}{}, both cores across drapes",
+        "{name}: {} vertices, {} drapes ({}{}), {}, {}, friction {friction}{}, both cores across drapes",
         t.len(),
         cases.len(),
-        match (corners, mode == CheckMode::FromWarp) {
-            (true, false) => "corner bodies, rest pose",
-            (false, false) => "sampled bodies and poses",
-            (true, true) => "corner bodies, rest pose, each from its DQS warp",
-            (false, true) => "sampled bodies and poses, each from its DQS warp",
+        if corners {
+            "corner bodies, rest pose"
+        } else {
+            "sampled bodies and poses"
+        },
+        if mode == CheckMode::FromWarp {
+            ", each from its DQS warp"
+        } else {
+            ""
         },
         if wardrobe.graded() {
             format!(
@@ -749,7 +753,14 @@ fn check(
                 }));
             }
             let mut d = if mode == CheckMode::FromWarp {
-                drape_from_warp(cloth, &warp, &posed.vertices, &model, &config, false)
+                sim::cloth::drape::drape_from_state(
+                    cloth,
+                    &warp,
+                    &posed.vertices,
+                    &model.triangles,
+                    &config,
+                    false,
+                )
             } else {
                 drape_from_reference(&model, cloth, t, *shape, pose, &config, false)?
             };
@@ -780,9 +791,7 @@ fn check(
                 "edges_doubled": r.strain.doubled,
                 "top_drop_cm": r.top_drop.map(|x| x * 100.0),
                 // The DQS baseline's error on this drape (Edist of the warp, cm).
-                "warp_edist_cm": 100.0
-                    * d.positions.iter().zip(&warp).map(|(a, b)| a.distance(*b) as f64).sum::<f64>()
-                    / warp.len().max(1) as f64,
+                "warp_edist_cm": eval::metrics::edist_cm(&warp, &d.positions),
                 "warp_edges_over_30pct": warp_over,
                 "polish_strain_p95_before": r.polish.map(|p| p.strain_p95_before),
                 "polish_mean_move_mm": r.polish.map(|p| p.mean_move * 1e3),
@@ -1125,7 +1134,14 @@ fn gallery(
         let posed = target.pose(&pose.pose);
         let warp = sized.warp(&reference, &target, &posed);
         let mut d = if from_warp {
-            drape_from_warp(&cloth, &warp, &posed.vertices, &model, &config, true)
+            sim::cloth::drape::drape_from_state(
+                &cloth,
+                &warp,
+                &posed.vertices,
+                &model.triangles,
+                &config,
+                true,
+            )
         } else {
             drape_from_reference(&model, &cloth, sized, shape, &pose.pose, &config, true)?
         };
@@ -1178,24 +1194,6 @@ fn gallery(
         output.display()
     );
     Ok(())
-}
-
-/// Drapes a template from its DQS warp `warp` on the body already in its target shape and
-/// pose `posed` (the paper's PBS-dagger; `drape sim --warm-start` with a warp); `parallel`
-/// lets the drape use rayon's threads.
-pub fn drape_from_warp(
-    cloth: &sim::cloth::ClothModel,
-    warp: &[glam::Vec3],
-    posed: &[glam::Vec3],
-    model: &BodyModel,
-    config: &sim::cloth::SimConfig,
-    parallel: bool,
-) -> sim::cloth::DrapeResult {
-    let still = sim::cloth::drape::StaticBody {
-        vertices: posed.to_vec(),
-        triangles: model.triangles.clone(),
-    };
-    sim::cloth::drape::drape(cloth, warp, &still, config, parallel, &mut |_| {})
 }
 
 /// Drapes a template from the body it is made for (the canonical body, or a size's

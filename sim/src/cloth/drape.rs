@@ -647,6 +647,24 @@ pub fn check_placement(body: &BodyCollider, x: &[Vec3]) -> Result<(), SimError> 
     Ok(())
 }
 
+/// A drape from a state of the cloth with the body already in its target shape and pose
+/// (`body` vertices over `triangles`, standing still): the paper's PBS-dagger when `start`
+/// is the DQS warp. As [`drape`] otherwise, with no progress reports.
+pub fn drape_from_state(
+    model: &ClothModel,
+    start: &[Vec3],
+    body: &[Vec3],
+    triangles: &[[u32; 3]],
+    config: &SimConfig,
+    parallel: bool,
+) -> DrapeResult {
+    let still = StaticBody {
+        vertices: body.to_vec(),
+        triangles: triangles.to_vec(),
+    };
+    drape(model, start, &still, config, parallel, &mut |_| {})
+}
+
 /// Runs a drape: `start` positions, the body's motion, then settling, push-out and the
 /// report. `parallel` lets a frame use rayon's threads; the result is the same either way.
 ///
