@@ -177,7 +177,10 @@ pub fn smooth(mesh: &TriMesh, field: Vec<Vec3>, rounds: usize) -> Vec<Vec3> {
             };
         };
         if field.len() >= PARALLEL_FROM {
-            next.par_iter_mut().enumerate().with_min_len(1_024).for_each(round);
+            next.par_iter_mut()
+                .enumerate()
+                .with_min_len(1_024)
+                .for_each(round);
         } else {
             next.iter_mut().enumerate().for_each(round);
         }
@@ -219,7 +222,10 @@ mod tests {
             .collect();
         let fast = smooth(&mesh, field.clone(), 37);
         let slow = smooth_serial(&mesh, field, 37);
-        assert_eq!(fast, slow, "parallel rounds must equal serial ones bit for bit");
+        assert_eq!(
+            fast, slow,
+            "parallel rounds must equal serial ones bit for bit"
+        );
 
         // A unit spike in the middle spreads: it falls, its neighbours rise, nothing goes
         // negative, and a constant field is left alone.
@@ -227,10 +233,18 @@ mod tests {
         let mut spike = vec![Vec3::ZERO; mesh.vertices.len()];
         spike[centre] = Vec3::ONE;
         let out = smooth(&mesh, spike, 10);
-        assert!(out[centre].x < 0.2 && out[centre].x > 0.0, "{}", out[centre].x);
+        assert!(
+            out[centre].x < 0.2 && out[centre].x > 0.0,
+            "{}",
+            out[centre].x
+        );
         assert!(out[centre + 1].x > 0.01);
         assert!(out.iter().all(|v| v.x >= 0.0));
         let constant = smooth(&mesh, vec![Vec3::splat(2.5); mesh.vertices.len()], 10);
-        assert!(constant.iter().all(|v| (*v - Vec3::splat(2.5)).abs().max_element() < 1e-5));
+        assert!(
+            constant
+                .iter()
+                .all(|v| (*v - Vec3::splat(2.5)).abs().max_element() < 1e-5)
+        );
     }
 }
