@@ -194,13 +194,16 @@ mod tests {
     use super::*;
     use crate::mesh::primitives::grid;
 
-    /// The plain one-thread rounds `smooth` must reproduce exactly.
+    /// The plain one-thread rounds `smooth` must reproduce exactly (the code it replaced).
     fn smooth_serial(mesh: &TriMesh, mut field: Vec<Vec3>, rounds: usize) -> Vec<Vec3> {
         let nb = neighbours(mesh);
         for _ in 0..rounds {
             field = (0..field.len())
                 .map(|v| {
                     let n = &nb[v];
+                    if n.is_empty() {
+                        return field[v];
+                    }
                     let mean = n.iter().map(|&u| field[u as usize]).sum::<Vec3>() / n.len() as f32;
                     0.5 * field[v] + 0.5 * mean
                 })
@@ -209,23 +212,44 @@ mod tests {
         field
     }
 
-    #[test]
-    fn smoothing_is_exact_in_parallel_and_spreads_a_spike() {
-        // 81 x 81 = 6,561 vertices: above the size from which rounds run in parallel.
-        let mesh = grid(Vec3::ZERO, Vec3::X * 0.01, Vec3::Z * 0.01, 80, 80);
-        assert!(mesh.vertices.len() >= 4_096);
-        let field: Vec<Vec3> = (0..mesh.vertices.len())
+    fn pseudo_random_field(n: usize) -> Vec<Vec3> {
+        (0..n)
             .map(|i| {
                 let x = (i as f32 * 0.618_034).fract();
                 Vec3::new(x, (x * 7.3).fract(), -x)
             })
-            .collect();
-        let fast = smooth(&mesh, field.clone(), 37);
-        let slow = smooth_serial(&mesh, field, 37);
-        assert_eq!(
-            fast, slow,
-            "parallel rounds must equal serial ones bit for bit"
-        );
+            .collect()
+    }
+
+    #[test]
+    fn smoothing_is_exact_in_parallel_and_spreads_a_spike() {
+        // 81 x 81 = 6,561 vertices runs its rounds in parallel, 11 x 11 on one thread; the
+        // small one gets a vertex no face uses, which keeps its value.
+        let mesh = grid(Vec3::ZERO, Vec3::X * 0.01, Vec3::Z * 0.01, 80, 80);
+        assert!(mesh.vertices.len() >= 4_096);
+        let small = grid(Vec3::ZERO, Vec3::X * 0.01, Vec3::Z * 0.01, 10, 10);
+        let mut lone = small.vertices.clone();
+        lone.push(Vec3::splat(1.0));
+        let small = TriMesh::new(lone, small.triangles.clone());
+        for m in [&mesh, &small] {
+            for rounds in [0, 1, 2, 37] {
+                let field = pseudo_random_field(m.vertices.len());
+                let fast = smooth(m, field.clone(), rounds);
+                let slow = smooth_serial(m, field.clone(), rounds);
+                assert_eq!(
+                    fast,
+                    slow,
+                    "{} vertices, {rounds} rounds: must equal one-thread rounds bit for bit",
+                    m.vertices.len()
+                );
+                if rounds == 0 {
+                    assert_eq!(fast, field);
+                }
+            }
+        }
+        let lone = small.vertices.len() - 1;
+        let field = pseudo_random_field(small.vertices.len());
+        assert_eq!(smooth(&small, field.clone(), 5)[lone], field[lone]);
 
         // A unit spike in the middle spreads: it falls, its neighbours rise, nothing goes
         // negative, and a constant field is left alone.
