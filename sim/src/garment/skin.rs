@@ -146,6 +146,10 @@ pub fn neighbours(mesh: &TriMesh) -> Vec<Vec<u32>> {
     nb
 }
 
+/// Meshes from this many vertices run [`smooth`]'s rounds in parallel; below it a round is
+/// cheaper than handing it to the thread pool.
+const SMOOTH_PARALLEL_FROM: usize = 4_096;
+
 /// `rounds` rounds of neighbour averaging of a per-vertex vector field: each round a vertex
 /// keeps half its value and takes half its neighbours' mean.
 ///
@@ -164,8 +168,6 @@ pub fn smooth(mesh: &TriMesh, field: Vec<Vec3>, rounds: usize) -> Vec<Vec3> {
     let flat: Vec<u32> = nb.into_iter().flatten().collect();
     let mut field = field;
     let mut next = vec![Vec3::ZERO; field.len()];
-    // Below this a round is cheaper than handing it to the thread pool.
-    const PARALLEL_FROM: usize = 4_096;
     for _ in 0..rounds {
         let round = |(v, out): (usize, &mut Vec3)| {
             let n = &flat[start[v]..start[v + 1]];
@@ -176,7 +178,7 @@ pub fn smooth(mesh: &TriMesh, field: Vec<Vec3>, rounds: usize) -> Vec<Vec3> {
                 0.5 * field[v] + 0.5 * mean
             };
         };
-        if field.len() >= PARALLEL_FROM {
+        if field.len() >= SMOOTH_PARALLEL_FROM {
             next.par_iter_mut()
                 .enumerate()
                 .with_min_len(1_024)
@@ -226,7 +228,7 @@ mod tests {
         // 81 x 81 = 6,561 vertices runs its rounds in parallel, 11 x 11 on one thread; the
         // small one gets a vertex no face uses, which keeps its value.
         let mesh = grid(Vec3::ZERO, Vec3::X * 0.01, Vec3::Z * 0.01, 80, 80);
-        assert!(mesh.vertices.len() >= 4_096);
+        assert!(mesh.vertices.len() >= SMOOTH_PARALLEL_FROM);
         let small = grid(Vec3::ZERO, Vec3::X * 0.01, Vec3::Z * 0.01, 10, 10);
         let mut lone = small.vertices.clone();
         lone.push(Vec3::splat(1.0));
