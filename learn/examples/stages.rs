@@ -65,7 +65,7 @@ fn main() {
         let l = burn::nn::LinearConfig::new(w, 4 * w).init(&device);
         let _ = l.forward(h.clone()).sum().backward();
     });
-    let body = Mlp::new(6, &[64, 128, 256], 0.1, &device);
+    let body = Mlp::new(6, &[64, 128, 256], 0.1, false, &device);
     let p =
         Tensor::<3>::random([b, c.body_points, 6], Distribution::Default, &device).require_grad();
     time("body MLP 6-64-128-256 fwd+bwd", 3, || {

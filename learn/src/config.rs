@@ -133,6 +133,13 @@ pub struct ModelConfig {
     /// false.
     #[serde(skip_serializing_if = "is_false")]
     pub zero_init_residuals: bool,
+    /// A layer normalisation (over the features of each point, learnt scale and shift)
+    /// before every leaky ReLU: in the body stream and its spatial transformer, the garment
+    /// MLP, the FeaStNet blocks and the fusion (default false: the paper states none). It
+    /// does not depend on the batch, so a drape predicts the same alone or in a batch.
+    /// Left out of the saved config when false.
+    #[serde(skip_serializing_if = "is_false")]
+    pub layer_norm: bool,
     /// The garment the network starts from (default `none`: the DQS warp M, as the paper).
     /// `linear`: M plus the linear (ridge) map from shape and bone rotations to the
     /// displacement, fitted on the training split when the run starts (cross-fitted for the
@@ -203,6 +210,7 @@ impl Default for ModelConfig {
             length_scale: 0.1,
             fourier_bands: 0,
             zero_init_residuals: false,
+            layer_norm: false,
             prior: PriorKind::None,
         }
     }
@@ -251,6 +259,7 @@ impl ModelConfig {
             length_scale: self.length_scale,
             fourier_bands: self.fourier_bands,
             zero_init_residuals: self.zero_init_residuals,
+            layer_norm: self.layer_norm,
             prior: self.prior,
             ..preset
         }

@@ -355,30 +355,35 @@ fn a_saved_and_loaded_checkpoint_predicts_the_same() {
     let device = Device::default();
     let (_, topo) = grid(5, 4);
     let g = Graph::new(&topo, &device);
-    let c = small_config(Variant::Local);
-    device.seed(3);
-    let net = GarNet::new(&c, 13, &device);
-    // Give the zero-initialised output layer weights so that predictions are not all 0.
-    let net = net.map(&mut Jitter);
-    let input = random_input(&c, 2, topo.vertices, 13, &device);
-    let before = net
-        .forward(&input, &g)
-        .into_data()
-        .try_to_vec::<f32>()
-        .unwrap();
-    assert!(before.iter().any(|&x| x != 0.0));
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("w.bpk");
-    learn::train::save_model(&net, &path).unwrap();
-    device.seed(99);
-    let fresh = GarNet::new(&c, 13, &device);
-    let loaded = learn::train::load_model(fresh, &path).unwrap();
-    let after = loaded
-        .forward(&input, &g)
-        .into_data()
-        .try_to_vec::<f32>()
-        .unwrap();
-    assert_eq!(before, after);
+    for layer_norm in [false, true] {
+        let c = ModelConfig {
+            layer_norm,
+            ..small_config(Variant::Local)
+        };
+        device.seed(3);
+        let net = GarNet::new(&c, 13, &device);
+        // Give the zero-initialised output layer weights so that predictions are not all 0.
+        let net = net.map(&mut Jitter);
+        let input = random_input(&c, 2, topo.vertices, 13, &device);
+        let before = net
+            .forward(&input, &g)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        assert!(before.iter().any(|&x| x != 0.0));
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("w.bpk");
+        learn::train::save_model(&net, &path).unwrap();
+        device.seed(99);
+        let fresh = GarNet::new(&c, 13, &device);
+        let loaded = learn::train::load_model(fresh, &path).unwrap();
+        let after = loaded
+            .forward(&input, &g)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        assert_eq!(before, after, "layer_norm {layer_norm}");
+    }
 }
 
 /// Adds 0.1 to every parameter.
@@ -508,4 +513,110 @@ fn a_block_that_starts_at_zero_adds_nothing_until_it_learns() {
         .try_to_vec::<f32>()
         .unwrap();
     assert!(he.iter().any(|&v| v.abs() > 1e-3));
+}
+
+/// Per-sample inputs of the Local variant in which sample `s`'s indices point at its own
+/// rows, so a batch can be compared with its samples one at a time.
+fn consistent_input(c: &ModelConfig, n: usize, samples: &[usize], device: &Device) -> Input {
+    let (p, pd) = (c.body_points, c.local_points());
+    let b = samples.len();
+    let body: Vec<Tensor<3>> = samples
+        .iter()
+        .map(|&s| {
+            device.seed(100 + s as u64);
+            Tensor::random([1, p, 6], Distribution::Default, device)
+        })
+        .collect();
+    let warped: Vec<Tensor<3>> = samples
+        .iter()
+        .map(|&s| {
+            device.seed(200 + s as u64);
+            Tensor::random([1, n, 3], Distribution::Default, device)
+        })
+        .collect();
+    let mut pool = Vec::new();
+    let mut local = Vec::new();
+    for (k, &s) in samples.iter().enumerate() {
+        let (ko, s) = (k as i64, s);
+        pool.extend(
+            (0..pd * c.local_pool_k).map(|i| ko * p as i64 + ((i * 31 + s * 7) % p) as i64),
+        );
+        local.extend((0..n * c.local_k).map(|i| ko * pd as i64 + ((i * 13 + s * 5) % pd) as i64));
+    }
+    let (pl, ll) = (pool.len(), local.len());
+    Input {
+        body: Tensor::cat(body, 0),
+        params: Tensor::zeros([b, 13], device),
+        warped: Tensor::cat(warped, 0),
+        pool_index: Tensor::from_data(TensorData::new(pool, [pl]), device),
+        local_index: Tensor::from_data(TensorData::new(local, [ll]), device),
+    }
+}
+
+#[test]
+fn layer_norm_adds_a_scale_and_shift_per_hidden_feature_and_keeps_samples_apart() {
+    let device = Device::default();
+    let (_, topo) = grid(6, 5);
+    let g = Graph::new(&topo, &device);
+    let plain = small_config(Variant::Local);
+    let c = ModelConfig {
+        layer_norm: true,
+        ..plain.clone()
+    };
+    c.validate().unwrap();
+    // Every normalised layer's width: the spatial transformer's MLP and head, both body
+    // blocks, the garment MLP, the layer into the convolutions, each FeaStNet block, the
+    // first fusion layer and the other fusion layers.
+    let widths: usize = [
+        c.stn_mlp.iter().sum::<usize>(),
+        c.stn_head.iter().sum(),
+        c.body_mlp1.iter().sum(),
+        c.body_mlp2.iter().sum(),
+        c.garment_mlp.iter().sum(),
+        c.conv_width,
+        c.conv_blocks * c.conv_width,
+        c.fusion.iter().sum(),
+    ]
+    .iter()
+    .sum();
+    assert_eq!(widths, 162);
+    let with = GarNet::new(&c, 13, &device).num_params();
+    let without = GarNet::new(&plain, 13, &device).num_params();
+    assert_eq!(with - without, 2 * widths);
+
+    // Unlike a batch normalisation, the prediction of a drape does not depend on what
+    // else is in its batch.
+    device.seed(5);
+    let net = GarNet::new(&c, 13, &device).map(&mut Jitter);
+    let n = topo.vertices;
+    let batch = net
+        .forward(&consistent_input(&c, n, &[0, 1], &device), &g)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    let mut alone = Vec::new();
+    for s in [0, 1] {
+        alone.extend(
+            net.forward(&consistent_input(&c, n, &[s], &device), &g)
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap(),
+        );
+    }
+    assert_eq!(batch.len(), 2 * n * 3);
+    assert!(batch.iter().any(|v| v.abs() > 1e-3));
+    let worst = batch
+        .iter()
+        .zip(&alone)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "batch and one at a time differ by {worst}");
+    // The normalisation is there: the same net without it predicts something else.
+    let other = GarNet::new(&plain, 13, &device).map(&mut Jitter);
+    let o = other
+        .forward(&consistent_input(&c, n, &[0, 1], &device), &g)
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    assert!(o.iter().zip(&batch).any(|(a, b)| (a - b).abs() > 1e-3));
 }

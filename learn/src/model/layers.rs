@@ -1,7 +1,7 @@
 //! Building blocks: point-wise MLPs and the FeaStNet convolution.
 
 use burn::module::{Module, Param};
-use burn::nn::{Initializer, Linear, LinearConfig};
+use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{leaky_relu, softmax};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
@@ -16,31 +16,60 @@ pub fn he() -> Initializer {
     }
 }
 
-/// A point-wise MLP: linear layers, each followed by a leaky ReLU.
+/// A layer normalisation over the last axis (features) of `width`, or none: the
+/// normalisation of [`crate::config::ModelConfig::layer_norm`].
+pub fn maybe_norm(on: bool, width: usize, device: &Device) -> Option<LayerNorm> {
+    on.then(|| LayerNormConfig::new(width).init(device))
+}
+
+/// `x` through `norm` if there is one.
+pub fn normed<const D: usize>(norm: &Option<LayerNorm>, x: Tensor<D>) -> Tensor<D> {
+    match norm {
+        Some(n) => n.forward(x),
+        None => x,
+    }
+}
+
+/// A point-wise MLP: linear layers, each followed by a leaky ReLU (with `norm`, by a layer
+/// normalisation and then the leaky ReLU).
 #[derive(Module, Debug)]
 pub struct Mlp {
     layers: Vec<Linear>,
+    /// One per layer with `norm`, empty without (no parameters, so weights saved without
+    /// normalisation load unchanged).
+    norms: Vec<LayerNorm>,
     #[module(skip)]
     slope: f64,
 }
 
 impl Mlp {
-    /// `input` features to `widths` (one layer per width).
-    pub fn new(input: usize, widths: &[usize], slope: f64, device: &Device) -> Self {
+    /// `input` features to `widths` (one layer per width), with a layer normalisation
+    /// before each activation when `norm` is set.
+    pub fn new(input: usize, widths: &[usize], slope: f64, norm: bool, device: &Device) -> Self {
         let mut layers = Vec::with_capacity(widths.len());
+        let mut norms = Vec::new();
         let mut d = input;
         for &w in widths {
             layers.push(LinearConfig::new(d, w).with_initializer(he()).init(device));
+            norms.extend(maybe_norm(norm, w, device));
             d = w;
         }
-        Self { layers, slope }
+        Self {
+            layers,
+            norms,
+            slope,
+        }
     }
 
     /// # Shapes
     /// `[.., input]` -> `[.., widths.last()]`.
     pub fn forward<const D: usize>(&self, mut x: Tensor<D>) -> Tensor<D> {
-        for l in &self.layers {
-            x = leaky_relu(l.forward(x), self.slope);
+        for (i, l) in self.layers.iter().enumerate() {
+            x = l.forward(x);
+            if let Some(n) = self.norms.get(i) {
+                x = n.forward(x);
+            }
+            x = leaky_relu(x, self.slope);
         }
         x
     }

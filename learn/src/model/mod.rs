@@ -11,8 +11,10 @@ mod layers;
 
 pub use layers::{FeaStConv, Graph, Mlp, SplitLinear};
 
+use layers::{maybe_norm, normed};
+
 use burn::module::Module;
-use burn::nn::{Initializer, Linear, LinearConfig};
+use burn::nn::{Initializer, LayerNorm, Linear, LinearConfig};
 use burn::tensor::activation::leaky_relu;
 use burn::tensor::{Device, Int, Tensor};
 
@@ -46,11 +48,12 @@ pub struct SpatialTransformer {
 
 impl SpatialTransformer {
     fn new(c: &ModelConfig, device: &Device) -> Self {
-        let mlp = Mlp::new(6, &c.stn_mlp, c.leaky_slope, device);
+        let mlp = Mlp::new(6, &c.stn_mlp, c.leaky_slope, c.layer_norm, device);
         let head = Mlp::new(
             *c.stn_mlp.last().unwrap(),
             &c.stn_head,
             c.leaky_slope,
+            c.layer_norm,
             device,
         );
         let out = LinearConfig::new(*c.stn_head.last().unwrap(), 9)
@@ -90,9 +93,15 @@ impl BodyStream {
         let (point, global) = c.body_mlp2.split_at(c.body_mlp2.len() - 1);
         Self {
             stn: SpatialTransformer::new(c, device),
-            mlp1: Mlp::new(6, &c.body_mlp1, c.leaky_slope, device),
-            mlp2_point: Mlp::new(c1 + 6, point, c.leaky_slope, device),
-            mlp2_global: Mlp::new(*point.last().unwrap(), global, c.leaky_slope, device),
+            mlp1: Mlp::new(6, &c.body_mlp1, c.leaky_slope, c.layer_norm, device),
+            mlp2_point: Mlp::new(c1 + 6, point, c.leaky_slope, c.layer_norm, device),
+            mlp2_global: Mlp::new(
+                *point.last().unwrap(),
+                global,
+                c.leaky_slope,
+                c.layer_norm,
+                device,
+            ),
         }
     }
 
@@ -117,6 +126,9 @@ impl BodyStream {
 #[derive(Module, Debug)]
 pub struct ConvStack {
     blocks: Vec<FeaStConv>,
+    /// One layer normalisation per block on its convolution's output, before the activation
+    /// ([`ModelConfig::layer_norm`]); empty without.
+    norms: Vec<LayerNorm>,
     #[module(skip)]
     slope: f64,
 }
@@ -134,8 +146,12 @@ impl ConvStack {
                 )
             })
             .collect();
+        let norms = (0..c.conv_blocks)
+            .flat_map(|_| maybe_norm(c.layer_norm, c.conv_width, device))
+            .collect();
         Self {
             blocks,
+            norms,
             slope: c.leaky_slope,
         }
     }
@@ -144,8 +160,11 @@ impl ConvStack {
     /// `h`: `[B, N, C]`, `xyz`: `[B, N, 3]` -> `[B, N, C]`.
     fn forward(&self, mut h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
         let rows = g.rows(h.dims()[0], &h.device());
-        for conv in &self.blocks {
-            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &rows); // [B, N, C]
+        for (i, conv) in self.blocks.iter().enumerate() {
+            let mut y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &rows); // [B, N, C]
+            if let Some(n) = self.norms.get(i) {
+                y = n.forward(y);
+            }
             h = h + leaky_relu(y, self.slope);
         }
         h
@@ -163,11 +182,15 @@ pub struct GarNet {
     garment_mlp: Mlp,
     /// Point-wise garment features + global body feature -> conv width.
     conv_in: SplitLinear,
+    /// Layer normalisation after `conv_in` ([`ModelConfig::layer_norm`]).
+    conv_in_norm: Option<LayerNorm>,
     /// Residual FeaStNet blocks (absent in GarNet-Naive).
     convs: Option<ConvStack>,
     /// First fusion layer, on [point-wise, patch-wise, global garment, global body
     /// (, local body)] features.
     fusion_in: SplitLinear,
+    /// Layer normalisation after `fusion_in` ([`ModelConfig::layer_norm`]).
+    fusion_in_norm: Option<LayerNorm>,
     /// The other fusion layers.
     fusion: Mlp,
     /// Last fusion layer: 3 outputs, zero at initialisation (the network starts at M).
@@ -232,14 +255,28 @@ impl GarNet {
         Self {
             body: (c.variant != Variant::GlobalParams).then(|| BodyStream::new(c, device)),
             local_in: local.then(|| LinearConfig::new(body_point, LOCAL_WIDTH).init(device)),
-            garment_mlp: Mlp::new(garment_inputs(c), &c.garment_mlp, c.leaky_slope, device),
+            garment_mlp: Mlp::new(
+                garment_inputs(c),
+                &c.garment_mlp,
+                c.leaky_slope,
+                c.layer_norm,
+                device,
+            ),
             conv_in: SplitLinear::new(&[cg, global], c.conv_width, device),
+            conv_in_norm: maybe_norm(c.layer_norm, c.conv_width, device),
             convs: c
                 .variant
                 .has_mesh_convolutions()
                 .then(|| ConvStack::new(c, device)),
             fusion_in: SplitLinear::new(&fusion_in, c.fusion[0], device),
-            fusion: Mlp::new(c.fusion[0], &c.fusion[1..], c.leaky_slope, device),
+            fusion_in_norm: maybe_norm(c.layer_norm, c.fusion[0], device),
+            fusion: Mlp::new(
+                c.fusion[0],
+                &c.fusion[1..],
+                c.leaky_slope,
+                c.layer_norm,
+                device,
+            ),
             out: LinearConfig::new(*c.fusion.last().unwrap(), 3)
                 .with_initializer(Initializer::Zeros)
                 .init(device),
@@ -289,7 +326,10 @@ impl GarNet {
             .garment_mlp
             .forward(positional_encoding(xyz.clone(), self.fourier_bands)); // [B, N, Cg]
         let h0 = leaky_relu(
-            self.conv_in.forward(vec![point.clone(), global.clone()]),
+            normed(
+                &self.conv_in_norm,
+                self.conv_in.forward(vec![point.clone(), global.clone()]),
+            ),
             self.slope,
         ); // [B, N, C]
         let patch = match &self.convs {
@@ -317,7 +357,10 @@ impl GarNet {
                 .reshape([b, n, l]); // [B, N, L]
             fused.push(local);
         }
-        let f = leaky_relu(self.fusion_in.forward(fused), self.slope); // [B, N, F0]
+        let f = leaky_relu(
+            normed(&self.fusion_in_norm, self.fusion_in.forward(fused)),
+            self.slope,
+        ); // [B, N, F0]
         self.out.forward(self.fusion.forward(f)) // [B, N, 3]
     }
 }
