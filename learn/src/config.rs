@@ -49,7 +49,8 @@ impl Variant {
 
 /// A set of network widths, to train a config's losses and schedule at other widths
 /// (`drape train --widths`, a plan's `widths`): the variant, the neighbourhood sizes, the
-/// leaky slope and the length scale stay the config's.
+/// leaky slope, the length scale, the prior and the optional additions (`fourier_bands`,
+/// `zero_init_residuals`, `layer_norm`) stay the config's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Widths {
@@ -134,10 +135,12 @@ pub struct ModelConfig {
     #[serde(skip_serializing_if = "is_false")]
     pub zero_init_residuals: bool,
     /// A layer normalisation (over the features of each point, learnt scale and shift)
-    /// before every leaky ReLU: in the body stream and its spatial transformer, the garment
-    /// MLP, the FeaStNet blocks and the fusion (default false: the paper states none). It
-    /// does not depend on the batch, so a drape predicts the same alone or in a batch.
-    /// Left out of the saved config when false.
+    /// after every hidden linear layer, before its leaky ReLU: in the body stream and its
+    /// spatial transformer, the garment MLP, the FeaStNet blocks and the fusion; not in the
+    /// 32-channel reduction of the local body features (`local_in`) nor on the output
+    /// layers (default false: the paper states none). It does not depend on the batch, so
+    /// a drape predicts the same alone or in a batch. Not with `zero_init_residuals`: a
+    /// normalised block's output is not zero. Left out of the saved config when false.
     #[serde(skip_serializing_if = "is_false")]
     pub layer_norm: bool,
     /// The garment the network starts from (default `none`: the DQS warp M, as the paper).
@@ -220,9 +223,14 @@ impl ModelConfig {
     /// The variant's paper name, with its prior if it has one ("GarNet-Local over the
     /// kernel prior").
     pub fn display_name(&self) -> String {
-        match self.prior {
+        let name = match self.prior {
             PriorKind::None => self.variant.paper_name().to_string(),
             p => format!("{} over the {} prior", self.variant.paper_name(), p.name()),
+        };
+        if self.layer_norm {
+            name + " with layer normalisation"
+        } else {
+            name
         }
     }
 
@@ -244,7 +252,7 @@ impl ModelConfig {
 
     /// This config at the widths of `w`: the layer widths, body points, FeaStNet width and
     /// heads and residual blocks of the preset, everything else (variant, neighbourhoods,
-    /// leaky slope, length scale) this config's.
+    /// leaky slope, length scale, prior, the optional additions) this config's.
     pub fn with_widths(&self, w: Widths) -> Self {
         let preset = match w {
             Widths::Cpu => Self::default(),
@@ -315,6 +323,13 @@ impl ModelConfig {
                 "model.fourier_bands = {} (0 to 16)",
                 self.fourier_bands
             ));
+        }
+        if self.layer_norm && self.zero_init_residuals {
+            return bad(
+                "model.layer_norm and model.zero_init_residuals together: the normalisation \
+                 would scale a block that starts at zero back to unit size (use one)"
+                    .into(),
+            );
         }
         if !(0.0..1.0).contains(&self.leaky_slope) {
             return bad(format!("model.leaky_slope = {} (0 to 1)", self.leaky_slope));
@@ -568,6 +583,34 @@ mod tests {
                 .parse::<Widths>()
                 .unwrap_err()
                 .contains("cpu or paper")
+        );
+    }
+
+    #[test]
+    fn layer_norm_is_off_by_default_kept_by_widths_and_named() {
+        let c = parse("").unwrap();
+        assert!(!c.model.layer_norm);
+        let saved = toml::to_string(&c).unwrap();
+        assert!(!saved.contains("layer_norm"), "{saved}");
+        assert_eq!(c.model.display_name(), "GarNet-Local");
+        let c = parse("[model]\nlayer_norm = true\nprior = \"kernel\"").unwrap();
+        c.model.validate().unwrap();
+        let saved = toml::to_string(&c).unwrap();
+        assert!(saved.contains("layer_norm = true"), "{saved}");
+        assert_eq!(toml::from_str::<TrainConfig>(&saved).unwrap(), c);
+        assert!(c.model.with_widths(Widths::Paper).layer_norm);
+        assert_eq!(
+            c.model.display_name(),
+            "GarNet-Local over the kernel prior with layer normalisation"
+        );
+        let both = ModelConfig {
+            zero_init_residuals: true,
+            ..c.model.clone()
+        };
+        let e = both.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("layer_norm") && e.contains("zero_init_residuals"),
+            "{e}"
         );
     }
 
