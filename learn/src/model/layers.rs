@@ -23,7 +23,7 @@ pub fn maybe_norm(on: bool, width: usize, device: &Device) -> Option<LayerNorm> 
 }
 
 /// `x` through `norm` if there is one.
-pub fn normed<const D: usize>(norm: &Option<LayerNorm>, x: Tensor<D>) -> Tensor<D> {
+pub fn normed<const D: usize>(norm: Option<&LayerNorm>, x: Tensor<D>) -> Tensor<D> {
     match norm {
         Some(n) => n.forward(x),
         None => x,
@@ -65,11 +65,7 @@ impl Mlp {
     /// `[.., input]` -> `[.., widths.last()]`.
     pub fn forward<const D: usize>(&self, mut x: Tensor<D>) -> Tensor<D> {
         for (i, l) in self.layers.iter().enumerate() {
-            x = l.forward(x);
-            if let Some(n) = self.norms.get(i) {
-                x = n.forward(x);
-            }
-            x = leaky_relu(x, self.slope);
+            x = leaky_relu(normed(self.norms.get(i), l.forward(x)), self.slope);
         }
         x
     }

@@ -161,11 +161,8 @@ impl ConvStack {
     fn forward(&self, mut h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
         let rows = g.rows(h.dims()[0], &h.device());
         for (i, conv) in self.blocks.iter().enumerate() {
-            let mut y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &rows); // [B, N, C]
-            if let Some(n) = self.norms.get(i) {
-                y = n.forward(y);
-            }
-            h = h + leaky_relu(y, self.slope);
+            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &rows); // [B, N, C]
+            h = h + leaky_relu(normed(self.norms.get(i), y), self.slope);
         }
         h
     }
@@ -327,7 +324,7 @@ impl GarNet {
             .forward(positional_encoding(xyz.clone(), self.fourier_bands)); // [B, N, Cg]
         let h0 = leaky_relu(
             normed(
-                &self.conv_in_norm,
+                self.conv_in_norm.as_ref(),
                 self.conv_in.forward(vec![point.clone(), global.clone()]),
             ),
             self.slope,
@@ -358,7 +355,7 @@ impl GarNet {
             fused.push(local);
         }
         let f = leaky_relu(
-            normed(&self.fusion_in_norm, self.fusion_in.forward(fused)),
+            normed(self.fusion_in_norm.as_ref(), self.fusion_in.forward(fused)),
             self.slope,
         ); // [B, N, F0]
         self.out.forward(self.fusion.forward(f)) // [B, N, 3]
@@ -369,8 +366,8 @@ impl GarNet {
 /// 2): the dense layers, the spatial transformer's 3x3 products and FeaStNet's padded
 /// aggregation `[M, K] x [K, C]` as executed (`slots` = K, the padded neighbourhood size),
 /// for `vertices` garment vertices and `params` shape-and-pose inputs (Global-Params).
-/// Activations, softmax, pooling and gathers are left out: they are a few operations per
-/// element against the dense layers' hundreds.
+/// Activations, layer normalisations, softmax, pooling and gathers are left out: they are
+/// a few operations per element against the dense layers' hundreds.
 pub fn forward_flops(c: &ModelConfig, params: usize, vertices: usize, slots: usize) -> f64 {
     let n = vertices as f64;
     let p = c.body_points as f64;
