@@ -603,3 +603,99 @@ fn tiny_heldout_run_halves_the_dqs_warps_test_edist() {
         inside("linear")
     );
 }
+
+/// A training step's gradients on two workers (the batch cut in two, each part's forward
+/// and backward pass on its own thread, the parts' gradients summed by their shares) are
+/// the whole batch's on one, parameter by parameter, and so are the loss terms: with an
+/// odd batch, so the parts are unequal (3 and 2 samples).
+#[test]
+fn gradients_on_two_workers_are_the_whole_batchs() {
+    use burn::module::{Module, ModuleVisitor, Param};
+    use burn::optim::GradientsParams;
+    use burn::tensor::{Device, Tensor};
+    use learn::train::{Setup, Workers};
+
+    let (_tmp, data) = generated("tiny");
+    let d = dataset::reader::Dataset::open(&data).unwrap();
+    let mut config =
+        learn::config::TrainConfig::load(Path::new("configs/train/tiny.toml")).unwrap();
+    config.batch_size = 5;
+    let device = Device::default().autodiff();
+    device.seed(config.seed);
+    let setup = Setup::new(&config, &d, &device);
+    let model = learn::model::GarNet::new(&config.model, setup.params, &device);
+    let mut rows = Vec::new();
+    let mut shards: Vec<_> = d.manifest.shards.iter().collect();
+    shards.sort_by_key(|s| s.split != dataset::config::Split::Train);
+    for s in shards {
+        // Training rows first, then the others (tiny has 4 training drapes).
+        if rows.len() < 5 {
+            rows.extend(d.read_shard(&s.file).unwrap());
+        }
+    }
+    rows.truncate(5);
+    assert_eq!(rows.len(), 5);
+
+    let (g1, t1) = setup.gradients(&model, &rows, &Workers::new(1, 5));
+    let two = Workers::new(2, 5);
+    assert_eq!(two.count(), 2);
+    let (g2, t2) = setup.gradients(&model, &rows, &two);
+
+    for (a, b, what) in [
+        (t1.total, t2.total, "total"),
+        (t1.vert, t2.vert, "L_vert"),
+        (t1.pen, t2.pen, "L_pen"),
+        (t1.norm, t2.norm, "L_norm"),
+        (t1.bend, t2.bend, "L_bend"),
+        (t1.edist_cm, t2.edist_cm, "Edist"),
+    ] {
+        assert!(
+            a > 0.0 && (a - b).abs() <= 1e-5 * a.abs(),
+            "{what}: {a} vs {b}"
+        );
+    }
+
+    struct Compare<'a> {
+        one: &'a GradientsParams,
+        two: &'a GradientsParams,
+        params: usize,
+        worst: f64,
+    }
+    impl ModuleVisitor for Compare<'_> {
+        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+            let a = self.one.get::<D>(p.id).expect("a gradient on one worker");
+            let b = self.two.get::<D>(p.id).expect("a gradient on two workers");
+            let a = a.into_data().try_to_vec::<f32>().unwrap();
+            let b = b.into_data().try_to_vec::<f32>().unwrap();
+            assert_eq!(a.len(), b.len());
+            let scale = a.iter().fold(0f64, |m, &x| m.max(x.abs() as f64));
+            let diff = a
+                .iter()
+                .zip(&b)
+                .fold(0f64, |m, (&x, &y)| m.max((x - y).abs() as f64));
+            if scale > 0.0 {
+                self.worst = self.worst.max(diff / scale);
+            } else {
+                assert_eq!(diff, 0.0);
+            }
+            self.params += 1;
+        }
+    }
+    let mut cmp = Compare {
+        one: &g1,
+        two: &g2,
+        params: 0,
+        worst: 0.0,
+    };
+    model.visit(&mut cmp);
+    eprintln!(
+        "{} parameter tensors, worst relative difference {:e}",
+        cmp.params, cmp.worst
+    );
+    assert!(cmp.params > 50, "{} parameter tensors", cmp.params);
+    assert!(
+        cmp.worst < 1e-4,
+        "largest gradient difference {} of the parameter's largest gradient",
+        cmp.worst
+    );
+}

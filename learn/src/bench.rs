@@ -14,7 +14,7 @@ use crate::LearnError;
 use crate::config::TrainConfig;
 use crate::data::Prepared;
 use crate::model::GarNet;
-use crate::train::Setup;
+use crate::train::{Setup, Workers};
 
 /// Measured training throughput.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -33,22 +33,26 @@ pub struct TrainRate {
     pub batches: usize,
     /// Training samples per second, whole steps.
     pub samples_per_second: f64,
-    /// Seconds per batch: inputs (k-NN, normals, collation).
-    pub prepare: f64,
-    /// Seconds per batch: forward pass and losses.
-    pub forward: f64,
-    /// Seconds per batch: backward pass.
-    pub backward: f64,
+    /// Gradient workers ([`crate::train::Workers`]).
+    pub workers: usize,
+    /// Seconds per batch: inputs, forward pass, losses and backward pass.
+    pub gradients: f64,
+    /// Seconds per batch of the gradients' stages, with one worker (with several they
+    /// overlap): inputs (k-NN, normals, collation), forward pass and losses, backward pass.
+    pub stages: Option<[f64; 3]>,
     /// Seconds per batch: Adam step.
     pub step: f64,
 }
 
-/// Times `batches` training steps (after one warm-up) on the training split of `data`.
+/// Times `batches` training steps (after one warm-up) on the training split of `data`, the
+/// gradients on `workers` ([`Workers::new`]; 0: one per rayon thread).
 pub fn train_rate(
     config: &TrainConfig,
     data: &Path,
     batches: usize,
+    workers: usize,
 ) -> Result<TrainRate, LearnError> {
+    let workers = Workers::new(workers, config.batch_size);
     let data = Dataset::open(data)?;
     let device = Device::default().autodiff();
     device.seed(config.seed);
@@ -80,32 +84,42 @@ pub fn train_rate(
         )));
     }
     let (mut prepare, mut forward, mut backward, mut step) = (0.0, 0.0, 0.0, 0.0);
+    let mut gradients = 0.0;
     let mut samples = 0usize;
     let mut timed = 0usize;
     for b in 0..=batches {
         let start = (b * config.batch_size) % (rows.len() - config.batch_size + 1);
         let chunk = &rows[start..start + config.batch_size];
         let t0 = Instant::now();
-        let prepared: Vec<Prepared> = chunk.par_iter().map(|r| setup.pre.prepare_row(r)).collect();
-        let refs: Vec<&Prepared> = prepared.iter().collect();
-        let t1 = Instant::now();
-        let (total, _) = setup.losses(&model, &refs);
-        let t2 = Instant::now();
-        let grads = GradientsParams::from_grads(total.backward(), &model);
+        let grads = if workers.count() > 1 {
+            setup.gradients(&model, chunk, &workers).0
+        } else {
+            // One worker: the same work as `Setup::gradients`, timed stage by stage.
+            let prepared: Vec<Prepared> =
+                chunk.par_iter().map(|r| setup.pre.prepare_row(r)).collect();
+            let refs: Vec<&Prepared> = prepared.iter().collect();
+            let t1 = Instant::now();
+            let (total, _) = setup.losses(&model, &refs);
+            let t2 = Instant::now();
+            let grads = GradientsParams::from_grads(total.backward(), &model);
+            if b > 0 {
+                prepare += (t1 - t0).as_secs_f64();
+                forward += (t2 - t1).as_secs_f64();
+                backward += t2.elapsed().as_secs_f64();
+            }
+            grads
+        };
         let t3 = Instant::now();
         model = optim.step(config.learning_rate, model, grads);
         let t4 = Instant::now();
         if b > 0 {
-            prepare += (t1 - t0).as_secs_f64();
-            forward += (t2 - t1).as_secs_f64();
-            backward += (t3 - t2).as_secs_f64();
+            gradients += (t3 - t0).as_secs_f64();
             step += (t4 - t3).as_secs_f64();
-            samples += refs.len();
+            samples += chunk.len();
             timed += 1;
         }
     }
     let n = timed.max(1) as f64;
-    let total = prepare + forward + backward + step;
     Ok(TrainRate {
         variant: config.model.variant.paper_name().to_string(),
         vertices: setup.topology.vertices,
@@ -113,10 +127,10 @@ pub fn train_rate(
         parameters,
         batch_size: config.batch_size,
         batches: timed,
-        samples_per_second: samples as f64 / total,
-        prepare: prepare / n,
-        forward: forward / n,
-        backward: backward / n,
+        samples_per_second: samples as f64 / (gradients + step),
+        workers: workers.count(),
+        gradients: gradients / n,
+        stages: (workers.count() == 1).then(|| [prepare / n, forward / n, backward / n]),
         step: step / n,
     })
 }

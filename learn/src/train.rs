@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams};
 use burn::tensor::{Device, Tensor};
 use dataset::config::Split;
 use dataset::reader::Dataset;
@@ -259,6 +259,116 @@ impl Setup {
     }
 }
 
+/// The threads that compute a training step's gradients (data parallelism inside one
+/// process). With one worker the step runs as it always has: the inputs on rayon's pool,
+/// then one forward and one backward pass of the whole batch, whose kernels use the pool's
+/// threads where burn-flex parallelises them. With more, the batch is cut into one part per
+/// worker; each part's inputs, forward and backward pass run on the worker's own thread (a
+/// one-thread rayon pool, so burn-flex's kernels stay on it), each part's loss weighted by
+/// its share of the batch, and the parts' gradients are summed. Every loss term is a mean
+/// over the batch's samples, so the sum is the whole batch's gradient up to rounding
+/// (`tests/workers.rs`). Two one-thread training processes side by side run 1.68 times
+/// the samples of one two-thread process (docs/bench.md); two workers bring that to one
+/// run.
+pub struct Workers {
+    pools: Vec<rayon::ThreadPool>,
+}
+
+impl std::fmt::Debug for Workers {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Workers")
+            .field("count", &self.count())
+            .finish()
+    }
+}
+
+impl Workers {
+    /// `n` workers (0: [`Workers::auto`] for batches of `batch_size`).
+    pub fn new(n: usize, batch_size: usize) -> Self {
+        let n = if n == 0 { Self::auto(batch_size) } else { n };
+        let pools = if n <= 1 {
+            Vec::new()
+        } else {
+            (0..n)
+                .map(|k| {
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(1)
+                        .thread_name(move |_| format!("gradients-{k}"))
+                        .build()
+                        .expect("a one-thread pool")
+                })
+                .collect()
+        };
+        Self { pools }
+    }
+
+    /// The default: one worker per thread of rayon's pool (`RAYON_NUM_THREADS`), at most
+    /// one per sample of a batch.
+    pub fn auto(batch_size: usize) -> usize {
+        rayon::current_num_threads().min(batch_size).max(1)
+    }
+
+    /// How many there are.
+    pub fn count(&self) -> usize {
+        self.pools.len().max(1)
+    }
+}
+
+impl Setup {
+    /// The gradients of the mean loss over `rows` and its terms: inputs, forward and
+    /// backward pass, on `workers`.
+    pub fn gradients(
+        &self,
+        model: &GarNet,
+        rows: &[dataset::shard::Row],
+        workers: &Workers,
+    ) -> (GradientsParams, Terms) {
+        if workers.pools.is_empty() || rows.len() < 2 {
+            let prepared: Vec<Prepared> =
+                rows.par_iter().map(|r| self.pre.prepare_row(r)).collect();
+            let refs: Vec<&Prepared> = prepared.iter().collect();
+            let (total, terms) = self.losses(model, &refs);
+            return (GradientsParams::from_grads(total.backward(), model), terms);
+        }
+        let n = rows.len();
+        let parts: Vec<&[dataset::shard::Row]> =
+            rows.chunks(n.div_ceil(workers.pools.len())).collect();
+        let results: Vec<(GradientsParams, Terms, usize)> = std::thread::scope(|s| {
+            let handles: Vec<_> = parts
+                .iter()
+                .zip(&workers.pools)
+                .map(|(&part, pool)| {
+                    // A fork has its own autodiff graph and the same parameter ids.
+                    let local = model.clone().fork(&self.device);
+                    s.spawn(move || {
+                        pool.install(|| {
+                            let prepared: Vec<Prepared> =
+                                part.iter().map(|r| self.pre.prepare_row(r)).collect();
+                            let refs: Vec<&Prepared> = prepared.iter().collect();
+                            let (total, terms) = self.losses(&local, &refs);
+                            let share = part.len() as f64 / n as f64;
+                            let grads =
+                                GradientsParams::from_grads((total * share).backward(), &local);
+                            (grads, terms, part.len())
+                        })
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("a gradient worker panicked"))
+                .collect()
+        });
+        let mut acc = GradientsAccumulator::<GarNet>::new();
+        let mut sum = Terms::default();
+        for (grads, terms, k) in results {
+            acc.accumulate(model, grads);
+            sum.add(&terms, k as f64);
+        }
+        (acc.grads(), sum.mean_of(n))
+    }
+}
+
 /// Where a run is; saved with every checkpoint.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct State {
@@ -341,6 +451,8 @@ pub struct TrainOptions {
     pub init: Option<PathBuf>,
     /// Show a progress bar.
     pub progress: bool,
+    /// Gradient workers per step ([`Workers`]; 0: one per rayon thread).
+    pub workers: usize,
 }
 
 /// Shards read together in one epoch, and how many of their rows train (converged, and in
@@ -524,6 +636,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             .sum::<usize>()
             + state.batch) as u64,
     );
+    let workers = Workers::new(opts.workers, config.batch_size);
     let started = Instant::now();
     let seconds_before = state.seconds;
     let cap = config.wall_clock_minutes * 60.0;
@@ -569,18 +682,14 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                 if batch_index <= state.batch {
                     continue; // done before an interruption
                 }
-                let prepared: Vec<Prepared> =
-                    chunk.par_iter().map(|r| setup.pre.prepare_row(r)).collect();
-                let refs: Vec<&Prepared> = prepared.iter().collect();
-                let (total, terms) = setup.losses(&model, &refs);
-                let grads = GradientsParams::from_grads(total.backward(), &model);
+                let (grads, terms) = setup.gradients(&model, chunk, &workers);
                 let lr = config.rate_at(state.steps, total_steps as u64);
                 model = optim.step(lr, model, grads);
                 state.batch = batch_index;
                 state.steps += 1;
                 state.seconds = seconds_before + started.elapsed().as_secs_f64();
-                sum.add(&terms, refs.len() as f64);
-                seen += refs.len();
+                sum.add(&terms, chunk.len() as f64);
+                seen += chunk.len();
                 writeln!(
                     steps_log,
                     "{},{},{},{:.2},{}",

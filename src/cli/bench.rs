@@ -55,6 +55,10 @@ enum BenchCommand {
         /// Override the variant: naive, global, local, global-params.
         #[arg(long)]
         variant: Option<String>,
+        /// Gradient workers per step, as `drape train --workers` (default: one per
+        /// thread of RAYON_NUM_THREADS, at most the batch size).
+        #[arg(long, default_value_t = 0)]
+        workers: usize,
     },
     /// Inference time of GarNet networks: per drape, the DQS warp, the inputs (normals,
     /// k-NN searches) and both streams, at batch 1 and 16, for each variant and garment
@@ -380,7 +384,8 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             batches,
             batch_size,
             variant,
-        } => return bench_train(config, data, batches, batch_size, variant),
+            workers,
+        } => return bench_train(config, data, batches, batch_size, variant, workers),
         BenchCommand::Speedup {
             run,
             data,
@@ -526,6 +531,7 @@ fn bench_train(
     batches: usize,
     batch_size: Option<usize>,
     variant: Option<String>,
+    workers: usize,
 ) -> anyhow::Result<()> {
     let mut c = learn::config::TrainConfig::load(&config)?;
     if let Some(b) = batch_size {
@@ -536,16 +542,29 @@ fn bench_train(
     }
     c.validate()?;
     let data = data.unwrap_or_else(|| c.data.clone());
-    let r = learn::bench::train_rate(&c, &data, batches)?;
+    let r = learn::bench::train_rate(&c, &data, batches, workers)?;
     println!(
-        "{} on {} vertices, {} body points, {} parameters, batch {}, {} timed batches",
-        r.variant, r.vertices, r.body_points, r.parameters, r.batch_size, r.batches
+        "{} on {} vertices, {} body points, {} parameters, batch {}, {} timed batches, {} gradient worker{}",
+        r.variant,
+        r.vertices,
+        r.body_points,
+        r.parameters,
+        r.batch_size,
+        r.batches,
+        r.workers,
+        if r.workers == 1 { "" } else { "s" }
     );
     println!("  training rate: {:.2} samples/s", r.samples_per_second);
-    println!(
-        "  per batch: inputs {:.3} s, forward+losses {:.3} s, backward {:.3} s, Adam {:.3} s",
-        r.prepare, r.forward, r.backward, r.step
-    );
+    match r.stages {
+        Some([inputs, forward, backward]) => println!(
+            "  per batch: inputs {inputs:.3} s, forward+losses {forward:.3} s, backward {backward:.3} s, Adam {:.3} s",
+            r.step
+        ),
+        None => println!(
+            "  per batch: inputs, forward+losses and backward on {} threads {:.3} s, Adam {:.3} s",
+            r.workers, r.gradients, r.step
+        ),
+    }
     if let Some(mb) = peak_memory_mb() {
         println!("  peak memory: {mb:.0} MB");
     }

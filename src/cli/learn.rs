@@ -42,6 +42,12 @@ pub struct TrainArgs {
     /// records the widths used.
     #[arg(long, value_name = "WIDTHS")]
     widths: Option<learn::config::Widths>,
+    /// Gradient workers per step: the batch is cut into this many parts whose forward and
+    /// backward passes run side by side, one thread each, and their gradients are summed
+    /// (the same gradient up to rounding). Default: one per thread of RAYON_NUM_THREADS
+    /// (all cores), at most the batch size; 1 runs the whole batch at once.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    workers: usize,
 }
 
 /// Runs `drape train`.
@@ -75,6 +81,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             run: run.clone(),
             init: args.init,
             progress: true,
+            workers: args.workers,
         },
     )?;
     if state.finished {
