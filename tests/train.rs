@@ -240,22 +240,42 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         .arg(&obj));
     assert!(!ok && text.contains("not a run folder"), "{text}");
 
-    // The batch API: a batch of two predicts what each sample alone does.
+    // The batch API: a batch of three predicts what each sample alone does, in one pass
+    // (one worker) and with its drapes shared among two workers (parts of 2 and 1).
     let d = dataset::reader::Dataset::open(&data).unwrap();
-    let net = learn::predict::Predictor::open(&run_dir, &d.statics).unwrap();
-    let rows = d.read_shard(&d.manifest.shards[0].file).unwrap();
-    let (both, _) = net.predict_rows(&rows[..2]);
-    for (i, row) in rows[..2].iter().enumerate() {
+    let open = |workers| {
+        learn::predict::Predictor::open(&run_dir, &d.statics)
+            .unwrap()
+            .with_workers(workers)
+    };
+    let (net, shared) = (open(1), open(2));
+    assert_eq!((net.workers(), shared.workers()), (1, 2));
+    let mut rows = Vec::new();
+    for s in &d.manifest.shards {
+        rows.extend(d.read_shard(&s.file).unwrap());
+    }
+    let rows = &rows[..3];
+    let (pass, _) = net.predict_rows(rows);
+    let (parts, _) = shared.predict_rows(rows);
+    for (i, row) in rows.iter().enumerate() {
         let (one, _) = net.predict_rows(std::slice::from_ref(row));
-        let diff = one[0]
+        let moved = one[0]
             .iter()
-            .zip(&both[i])
-            .map(|(a, b)| a.distance(*b))
+            .zip(&row.warped)
+            .map(|(a, m)| a.distance(*m))
             .fold(0.0f32, f32::max);
-        assert!(
-            diff < 1e-5,
-            "sample {i}: batch and single differ by {diff} m"
-        );
+        assert!(moved > 1e-3, "sample {i}: the network leaves M as it is");
+        for (other, what) in [(&pass[i], "one pass"), (&parts[i], "two workers")] {
+            let diff = one[0]
+                .iter()
+                .zip(other)
+                .map(|(a, b)| a.distance(*b))
+                .fold(0.0f32, f32::max);
+            assert!(
+                diff < 1e-5,
+                "sample {i}: {what} and single differ by {diff} m"
+            );
+        }
     }
 
     // drape eval: the report folder, and its figures against ones computed here.

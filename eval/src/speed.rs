@@ -13,6 +13,7 @@
 //! The simulator runs one drape at a time on all of rayon's threads (constraint colours in
 //! parallel), the network on the same threads.
 
+use rayon::prelude::{IntoParallelRefIterator, ParallelIterator};
 use std::time::Instant;
 
 use dataset::config::Split;
@@ -42,6 +43,9 @@ pub struct SpeedOptions {
     pub repeats: usize,
     /// Split to take samples from.
     pub split: Split,
+    /// Threads the batched measurement's drapes are shared among
+    /// (`learn::predict::Predictor::with_workers`; 0: one per rayon thread).
+    pub workers: usize,
 }
 
 /// Times of one sample (s).
@@ -74,6 +78,10 @@ pub struct SampleSpeed {
     pub network: f64,
 }
 
+fn one() -> usize {
+    1
+}
+
 /// The whole measurement.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SpeedReport {
@@ -83,6 +91,10 @@ pub struct SpeedReport {
     pub vertices: usize,
     /// Threads used.
     pub threads: usize,
+    /// Threads the batched measurement's drapes were shared among (1: one pass over the
+    /// batch, as every report before session 35).
+    #[serde(default = "one")]
+    pub workers: usize,
     /// Per sample.
     pub samples: Vec<SampleSpeed>,
     /// Batch of the batched measurement.
@@ -330,7 +342,7 @@ pub fn measure(
     let redraper = Redraper::new(data, wardrobe)?;
     let config = &redraper.config;
     let template = &wardrobe.base;
-    let net = Predictor::open(run, &data.statics)?;
+    let net = Predictor::open(run, &data.statics)?.with_workers(opts.workers);
     let canonical = model
         .shape(&ShapeParams::default())
         .map_err(|e| EvalError::Invalid(e.to_string()))?;
@@ -394,16 +406,15 @@ pub fn measure(
         bodies_of_rows.push((shaped, posed));
     }
     // Batched: `batch` samples (the timed ones, repeated if fewer), warp and inputs
-    // included, per drape.
+    // included, per drape. The batch's warps and inputs run on rayon's threads, one drape
+    // each, and the network shares the drapes among its workers.
     let b = opts.batch.max(1);
+    let jobs: Vec<_> = rows.iter().zip(&bodies_of_rows).cycle().take(b).collect();
     let mut per = Vec::new();
     for r in 0..=opts.repeats.max(1) {
         let t0 = Instant::now();
-        let prepared: Vec<learn::data::Prepared> = rows
-            .iter()
-            .zip(&bodies_of_rows)
-            .cycle()
-            .take(b)
+        let prepared: Vec<learn::data::Prepared> = jobs
+            .par_iter()
             .map(|(row, (shaped, posed))| {
                 let warped = template.warp(&canonical, shaped, posed);
                 net.prepare(
@@ -435,6 +446,7 @@ pub fn measure(
         network: net.config.model.display_name(),
         vertices: data.statics.garment_vertices.len(),
         threads: rayon::current_num_threads(),
+        workers: net.workers(),
         samples,
         batch: b,
         batched_per_drape: median(per),

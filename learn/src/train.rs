@@ -312,6 +312,30 @@ impl Workers {
     pub fn count(&self) -> usize {
         self.pools.len().max(1)
     }
+
+    /// `items` cut into one contiguous part per worker (the first parts one longer when
+    /// they do not divide evenly), `f` run on each part on its worker's thread, the
+    /// results in the parts' order. With one worker, `f(items)` on the calling thread.
+    pub fn share<T: Sync, R: Send>(&self, items: &[T], f: impl Fn(&[T]) -> R + Sync) -> Vec<R> {
+        if self.pools.is_empty() || items.is_empty() {
+            return vec![f(items)];
+        }
+        let parts: Vec<&[T]> = items
+            .chunks(items.len().div_ceil(self.pools.len()))
+            .collect();
+        let f = &f;
+        std::thread::scope(|s| {
+            let handles: Vec<_> = parts
+                .iter()
+                .zip(&self.pools)
+                .map(|(&part, pool)| s.spawn(move || pool.install(|| f(part))))
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("a worker panicked"))
+                .collect()
+        })
+    }
 }
 
 impl Setup {
@@ -331,33 +355,15 @@ impl Setup {
             return (GradientsParams::from_grads(total.backward(), model), terms);
         }
         let n = rows.len();
-        let parts: Vec<&[dataset::shard::Row]> =
-            rows.chunks(n.div_ceil(workers.pools.len())).collect();
-        let results: Vec<(GradientsParams, Terms, usize)> = std::thread::scope(|s| {
-            let handles: Vec<_> = parts
-                .iter()
-                .zip(&workers.pools)
-                .map(|(&part, pool)| {
-                    // A fork has its own autodiff graph and the same parameter ids.
-                    let local = model.clone().fork(&self.device);
-                    s.spawn(move || {
-                        pool.install(|| {
-                            let prepared: Vec<Prepared> =
-                                part.iter().map(|r| self.pre.prepare_row(r)).collect();
-                            let refs: Vec<&Prepared> = prepared.iter().collect();
-                            let (total, terms) = self.losses(&local, &refs);
-                            let share = part.len() as f64 / n as f64;
-                            let grads =
-                                GradientsParams::from_grads((total * share).backward(), &local);
-                            (grads, terms, part.len())
-                        })
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().expect("a gradient worker panicked"))
-                .collect()
+        let results: Vec<(GradientsParams, Terms, usize)> = workers.share(rows, |part| {
+            // A fork has its own autodiff graph and the same parameter ids.
+            let local = model.clone().fork(&self.device);
+            let prepared: Vec<Prepared> = part.iter().map(|r| self.pre.prepare_row(r)).collect();
+            let refs: Vec<&Prepared> = prepared.iter().collect();
+            let (total, terms) = self.losses(&local, &refs);
+            let share = part.len() as f64 / n as f64;
+            let grads = GradientsParams::from_grads((total * share).backward(), &local);
+            (grads, terms, part.len())
         });
         let mut acc = GradientsAccumulator::<GarNet>::new();
         let mut sum = Terms::default();

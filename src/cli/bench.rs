@@ -87,6 +87,10 @@ enum BenchCommand {
         /// Timed repeats per measurement (after one warm-up); the median is printed.
         #[arg(long, default_value_t = 5)]
         repeats: usize,
+        /// Threads a batch's drapes are shared among, one drape per pass (default: one
+        /// per thread of RAYON_NUM_THREADS; 1: the whole batch in one pass).
+        #[arg(long, default_value_t = 0)]
+        workers: usize,
     },
     /// The speed-up of a trained network over the simulator on the same test samples, in
     /// one run: the full drape (PBS) and PBS-dagger (from the DQS warp, body in the target
@@ -111,6 +115,10 @@ enum BenchCommand {
         /// Also write the figures as JSON.
         #[arg(long, value_name = "FILE.json")]
         json: Option<std::path::PathBuf>,
+        /// Threads the batched measurement's drapes are shared among, one drape per pass
+        /// (default: one per thread of RAYON_NUM_THREADS; 1: the whole batch in one pass).
+        #[arg(long, default_value_t = 0)]
+        workers: usize,
     },
 }
 
@@ -132,6 +140,7 @@ fn bench_predict(
     batches: &[usize],
     variants: &[String],
     repeats: usize,
+    workers: usize,
 ) -> anyhow::Result<()> {
     let base = learn::config::TrainConfig::load(config)?;
     let variants: Vec<_> = variants
@@ -143,8 +152,10 @@ fn bench_predict(
     let (model, library) = load(ctx)?;
     let canonical = model.shape(&ShapeParams::default())?;
     let threads = rayon::current_num_threads();
+    let shared = learn::train::Workers::new(workers, usize::MAX).count();
     println!(
-        "{garment}, default body, poses random:1..={most}; {threads} threads; median of {repeats} runs after a warm-up"
+        "{garment}, default body, poses random:1..={most}; {threads} threads; a batch's drapes shared among {shared} worker{}; median of {repeats} runs after a warm-up",
+        if shared == 1 { "" } else { "s" }
     );
     println!(
         "{:<22} {:>8} {:>6} {:>11} {:>11} {:>13} {:>13} {:>10}",
@@ -179,7 +190,7 @@ fn bench_predict(
             let mut c = base.clone();
             c.model.variant = variant;
             c.validate()?;
-            let net = learn::predict::Predictor::untrained(&c, &statics);
+            let net = learn::predict::Predictor::untrained(&c, &statics).with_workers(workers);
             for &b in batches {
                 let b = b.max(1);
                 let (mut inputs, mut network) = (Vec::new(), Vec::new());
@@ -229,6 +240,7 @@ fn bench_speedup(
     batch: usize,
     repeats: usize,
     json: Option<std::path::PathBuf>,
+    workers: usize,
 ) -> anyhow::Result<()> {
     let (config, _) = learn::run::open_run(run)?;
     let dir = data.unwrap_or_else(|| config.data.clone());
@@ -273,6 +285,7 @@ fn bench_speedup(
             batch,
             repeats,
             split: dataset::config::Split::Test,
+            workers,
         },
         &mut |s| {
             let net = s.warp + s.inputs + s.network;
@@ -393,7 +406,8 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             batch,
             repeats,
             json,
-        } => return bench_speedup(ctx, &run, data, samples, batch, repeats, json),
+            workers,
+        } => return bench_speedup(ctx, &run, data, samples, batch, repeats, json, workers),
         BenchCommand::Predict {
             config,
             garment,
@@ -401,6 +415,7 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
             batch,
             variant,
             repeats,
+            workers,
         } => {
             return bench_predict(
                 ctx,
@@ -410,6 +425,7 @@ pub fn run(args: BenchArgs, ctx: &Context) -> anyhow::Result<()> {
                 &batch,
                 &variant,
                 repeats,
+                workers,
             );
         }
     };
