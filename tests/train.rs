@@ -627,7 +627,8 @@ fn tiny_heldout_run_halves_the_dqs_warps_test_edist() {
 /// A training step's gradients on two workers (the batch cut in two, each part's forward
 /// and backward pass on its own thread, the parts' gradients summed by their shares) are
 /// the whole batch's on one, parameter by parameter, and so are the loss terms: with an
-/// odd batch, so the parts are unequal (3 and 2 samples).
+/// odd batch, so the parts are unequal (3 and 2 samples); the paper's physics losses
+/// (with the curvature losses on, training keeps one worker: `learn::train::Workers`).
 #[test]
 fn gradients_on_two_workers_are_the_whole_batchs() {
     use burn::module::{Module, ModuleVisitor, Param};
@@ -643,7 +644,6 @@ fn gradients_on_two_workers_are_the_whole_batchs() {
     let device = Device::default().autodiff();
     device.seed(config.seed);
     let setup = Setup::new(&config, &d, &device);
-    let model = learn::model::GarNet::new(&config.model, setup.params, &device);
     let mut rows = Vec::new();
     let mut shards: Vec<_> = d.manifest.shards.iter().collect();
     shards.sort_by_key(|s| s.split != dataset::config::Split::Train);
@@ -656,10 +656,18 @@ fn gradients_on_two_workers_are_the_whole_batchs() {
     rows.truncate(5);
     assert_eq!(rows.len(), 5);
 
-    let (g1, t1) = setup.gradients(&model, &rows, &Workers::new(1, 5));
+    // Two fresh networks from the same seed: burn creates parameters when first used, so
+    // this also checks that the starting weights do not depend on the worker count.
+    let fresh = || {
+        device.seed(config.seed);
+        learn::model::GarNet::new(&config.model, setup.params, &device)
+    };
     let two = Workers::new(2, 5);
     assert_eq!(two.count(), 2);
-    let (g2, t2) = setup.gradients(&model, &rows, &two);
+    let model_two = fresh();
+    let (g2, t2) = setup.gradients(&model_two, &rows, &two);
+    let model = fresh();
+    let (g1, t1) = setup.gradients(&model, &rows, &Workers::new(1, 5));
 
     for (a, b, what) in [
         (t1.total, t2.total, "total"),
@@ -675,39 +683,44 @@ fn gradients_on_two_workers_are_the_whole_batchs() {
         );
     }
 
-    struct Compare<'a> {
-        one: &'a GradientsParams,
-        two: &'a GradientsParams,
+    // Each network's gradients in its parameters' order (the two have their own ids).
+    struct Collect<'a>(&'a GradientsParams, Vec<Vec<f32>>);
+    impl ModuleVisitor for Collect<'_> {
+        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+            let g = self
+                .0
+                .get::<D>(p.id)
+                .expect("a gradient for every parameter");
+            self.1.push(g.into_data().try_to_vec::<f32>().unwrap());
+        }
+    }
+    let mut one = Collect(&g1, Vec::new());
+    model.visit(&mut one);
+    let mut two = Collect(&g2, Vec::new());
+    model_two.visit(&mut two);
+    assert_eq!(one.1.len(), two.1.len());
+    struct Cmp {
         params: usize,
         worst: f64,
     }
-    impl ModuleVisitor for Compare<'_> {
-        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-            let a = self.one.get::<D>(p.id).expect("a gradient on one worker");
-            let b = self.two.get::<D>(p.id).expect("a gradient on two workers");
-            let a = a.into_data().try_to_vec::<f32>().unwrap();
-            let b = b.into_data().try_to_vec::<f32>().unwrap();
-            assert_eq!(a.len(), b.len());
-            let scale = a.iter().fold(0f64, |m, &x| m.max(x.abs() as f64));
-            let diff = a
-                .iter()
-                .zip(&b)
-                .fold(0f64, |m, (&x, &y)| m.max((x - y).abs() as f64));
-            if scale > 0.0 {
-                self.worst = self.worst.max(diff / scale);
-            } else {
-                assert_eq!(diff, 0.0);
-            }
-            self.params += 1;
-        }
-    }
-    let mut cmp = Compare {
-        one: &g1,
-        two: &g2,
+    let mut cmp = Cmp {
         params: 0,
         worst: 0.0,
     };
-    model.visit(&mut cmp);
+    for (a, b) in one.1.iter().zip(&two.1) {
+        assert_eq!(a.len(), b.len());
+        let scale = a.iter().fold(0f64, |m, &x| m.max(x.abs() as f64));
+        let diff = a
+            .iter()
+            .zip(b)
+            .fold(0f64, |m, (&x, &y)| m.max((x - y).abs() as f64));
+        if scale > 0.0 {
+            cmp.worst = cmp.worst.max(diff / scale);
+        } else {
+            assert_eq!(diff, 0.0);
+        }
+        cmp.params += 1;
+    }
     eprintln!(
         "{} parameter tensors, worst relative difference {:e}",
         cmp.params, cmp.worst
