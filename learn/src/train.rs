@@ -268,9 +268,9 @@ impl Setup {
 /// its share of the batch, and the parts' gradients are summed. Every loss term is a mean
 /// over the batch's samples, so the sum is the whole batch's gradient up to rounding
 /// (`tests/train.rs`). Not with the curvature losses: on tiny data with L_RQ, L_MC and
-/// L_UMC on, the two were found to differ, so `drape train` keeps one worker for them. Two one-thread training processes side by side run 1.68 times
-/// the samples of one two-thread process (docs/bench.md); two workers bring that to one
-/// run.
+/// L_UMC on, the two were found to differ, so `drape train` keeps one worker for them.
+/// Two one-thread training processes side by side run 1.68 times the samples of one
+/// two-thread process with one worker (docs/bench.md); two workers bring that to one run.
 pub struct Workers {
     pools: Vec<rayon::ThreadPool>,
 }

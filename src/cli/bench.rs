@@ -152,7 +152,11 @@ fn bench_predict(
     let (model, library) = load(ctx)?;
     let canonical = model.shape(&ShapeParams::default())?;
     let threads = rayon::current_num_threads();
-    let shared = learn::train::Workers::new(workers, usize::MAX).count();
+    let shared = if workers == 0 {
+        learn::train::Workers::auto(usize::MAX)
+    } else {
+        workers
+    };
     println!(
         "{garment}, default body, poses random:1..={most}; {threads} threads; a batch's drapes shared among {shared} worker{}; median of {repeats} runs after a warm-up",
         if shared == 1 { "" } else { "s" }
