@@ -641,6 +641,12 @@ fn gradients_on_two_workers_are_the_whole_batchs() {
     let mut config =
         learn::config::TrainConfig::load(Path::new("configs/train/tiny.toml")).unwrap();
     config.batch_size = 5;
+    // Two curvature terms on, weighted to about the physics terms' size (L_RQ^8 is
+    // ~2e-8 m^4 here, L_UMC ~2e-6 m^2). Not L_MC: its gradient changes with the order of a
+    // batch's sums, so runs with it keep one worker (`learn::train::Workers`).
+    config.loss.rq = [1e6, 0.0, 0.0];
+    config.loss.umc = 1e4;
+    config.loss.mc = 0.0;
     let device = Device::default().autodiff();
     device.seed(config.seed);
     let setup = Setup::new(&config, &d, &device);
@@ -676,6 +682,8 @@ fn gradients_on_two_workers_are_the_whole_batchs() {
         (t1.norm, t2.norm, "L_norm"),
         (t1.bend, t2.bend, "L_bend"),
         (t1.edist_cm, t2.edist_cm, "Edist"),
+        (t1.rq[0], t2.rq[0], "L_RQ^8"),
+        (t1.umc, t2.umc, "L_UMC"),
     ] {
         assert!(
             a > 0.0 && (a - b).abs() <= 1e-5 * a.abs(),

@@ -193,6 +193,32 @@ pub fn checkpoint(
 
 /// Opens a CSV log for appending, writing its header if it is new.
 pub fn append(path: &Path, header: &str) -> Result<File, LearnError> {
+    append_after(path, header, |_| true)
+}
+
+/// Opens a CSV log for appending after dropping the rows for which `keep` is false. A run
+/// resumes from its last checkpoint: rows a stopped process wrote after that checkpoint
+/// would be written again, so `drape train` keeps only those the checkpoint covers.
+pub fn append_after(
+    path: &Path,
+    header: &str,
+    keep: impl Fn(&str) -> bool,
+) -> Result<File, LearnError> {
+    if path.exists() {
+        let text = std::fs::read_to_string(path).map_err(io(path))?;
+        let mut lines = text.lines();
+        let first = lines.next();
+        let rows: Vec<&str> = lines.filter(|l| !l.is_empty()).collect();
+        let kept: Vec<&str> = rows.iter().copied().filter(|l| keep(l)).collect();
+        if kept.len() < rows.len() {
+            let mut out = String::new();
+            for l in first.into_iter().chain(kept) {
+                out.push_str(l);
+                out.push('\n');
+            }
+            write_files(&[(path, out.as_bytes())])?;
+        }
+    }
     let new = !path.exists();
     let mut f = OpenOptions::new()
         .create(true)
@@ -219,4 +245,37 @@ pub fn progress(show: bool, len: u64) -> ProgressBar {
         .progress_chars("=> "),
     );
     bar
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A log with rows past the checkpoint: they are dropped before appending, the rest
+    /// and the header stay; a log with nothing to drop is left as it is.
+    #[test]
+    fn append_after_drops_the_rows_past_the_checkpoint() {
+        let dir = std::env::temp_dir().join(format!("drape-append-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("log.csv");
+        std::fs::write(&p, "epoch,x\n0,a\n1,b\n2,c\n").unwrap();
+        let epoch = |l: &str| l.split(',').next().unwrap().parse::<u32>().unwrap();
+        let mut f = append_after(&p, "epoch,x", |l| epoch(l) < 2).unwrap();
+        writeln!(f, "2,d").unwrap();
+        drop(f);
+        assert_eq!(
+            std::fs::read_to_string(&p).unwrap(),
+            "epoch,x\n0,a\n1,b\n2,d\n"
+        );
+        let f = append_after(&p, "epoch,x", |_| true).unwrap();
+        drop(f);
+        assert_eq!(
+            std::fs::read_to_string(&p).unwrap(),
+            "epoch,x\n0,a\n1,b\n2,d\n"
+        );
+        let q = dir.join("new.csv");
+        drop(append_after(&q, "epoch,x", |_| false).unwrap());
+        assert_eq!(std::fs::read_to_string(&q).unwrap(), "epoch,x\n");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -267,8 +267,10 @@ impl Setup {
 /// one-thread rayon pool, so burn-flex's kernels stay on it), each part's loss weighted by
 /// its share of the batch, and the parts' gradients are summed. Every loss term is a mean
 /// over the batch's samples, so the sum is the whole batch's gradient up to rounding
-/// (`tests/train.rs`). Not with the curvature losses: on tiny data with L_RQ, L_MC and
-/// L_UMC on, the two were found to differ, so `drape train` keeps one worker for them.
+/// (`tests/train.rs`, with L_RQ^8 and L_UMC on). Not with L_MC: its gradient is
+/// sensitive to rounding, on tiny data 4% of a parameter's largest between a batch and
+/// the same batch reversed on one worker (with no L_MC, 2e-7), so `drape train` keeps one
+/// worker for runs with it.
 /// Two one-thread training processes side by side run 1.68 times the samples of one
 /// two-thread process with one worker (docs/bench.md); two workers bring that to one run.
 pub struct Workers {
@@ -671,9 +673,10 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             .sum::<usize>()
             + state.batch) as u64,
     );
-    // The curvature fine-tunes keep one worker: with L_RQ, L_MC and L_UMC on, two
-    // workers' gradients were not found equal to the whole batch's (session 35).
-    let workers = if config.loss.has_curvature() {
+    // Runs with L_MC keep one worker: its gradient changes with the order of a batch's
+    // sums (on one worker, a reversed batch's differs by 4% of a parameter's largest), so
+    // two workers' cannot be checked against the whole batch's (`Workers`).
+    let workers = if config.loss.mc > 0.0 {
         Workers::new(1, config.batch_size)
     } else {
         Workers::new(opts.workers, config.batch_size)
@@ -682,13 +685,19 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     let seconds_before = state.seconds;
     let cap = config.wall_clock_minutes * 60.0;
     let mut last_save = Instant::now();
-    let mut steps_log = crate::run::append(
+    // Rows past the checkpoint (a process stopped before its next save) are dropped:
+    // those steps and epochs run again from here.
+    let field = |l: &str, i: usize| l.split(',').nth(i).and_then(|f| f.parse::<u64>().ok());
+    let (done_steps, done_epochs) = (state.steps, state.epoch as u64);
+    let mut steps_log = crate::run::append_after(
         &opts.run.join("steps.csv"),
         &format!("epoch,batch,step,seconds,{}", Terms::HEADER),
+        |l| field(l, 2).is_some_and(|s| s <= done_steps),
     )?;
-    let mut log = crate::run::append(
+    let mut log = crate::run::append_after(
         &opts.run.join("log.csv"),
         &format!("epoch,split,samples,seconds,{}", Terms::HEADER),
+        |l| field(l, 0).is_some_and(|e| e < done_epochs),
     )?;
     while state.epoch < config.epochs {
         let mut sum = Terms::default();
