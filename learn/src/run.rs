@@ -191,12 +191,8 @@ pub fn checkpoint(
     write_files(&[(&mp, &model), (&op, &optim), (&sp, &json(state))])
 }
 
-/// Opens a CSV log for appending, writing its header if it is new.
-pub fn append(path: &Path, header: &str) -> Result<File, LearnError> {
-    append_after(path, header, |_| true)
-}
-
-/// Opens a CSV log for appending after dropping the rows for which `keep` is false. A run
+/// Opens a CSV log for appending, writing its header if it is new, after dropping the
+/// rows for which `keep` is false. A run
 /// resumes from its last checkpoint: rows a stopped process wrote after that checkpoint
 /// would be written again, so `drape train` keeps only those the checkpoint covers.
 pub fn append_after(
