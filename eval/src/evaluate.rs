@@ -149,6 +149,8 @@ pub struct Evaluation {
     pub network_seconds_per_drape: f64,
     /// Batch size of those batches.
     pub batch: usize,
+    /// Threads a batch's drapes were shared among (`Predictor::workers`).
+    pub workers: usize,
     /// The network's paper name.
     pub network: String,
     /// Wall time of the whole evaluation (s).
@@ -491,6 +493,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         train_samples: keys.len(),
         network_seconds_per_drape: network_seconds / n as f64,
         batch: opts.batch.max(1),
+        workers: net.workers(),
         network: net.config.model.display_name(),
         seconds: t0.elapsed().as_secs_f64(),
         linear,

@@ -359,6 +359,7 @@ pub fn write_report(
         curves: BTreeMap<&'a str, BTreeMap<String, Vec<(f64, f64)>>>,
         network_seconds_per_drape: f64,
         batch: usize,
+        workers: usize,
         renders: BTreeMap<&'a str, u64>,
         non_finite_predictions: usize,
         linear_lambda: f64,
@@ -390,6 +391,7 @@ pub fn write_report(
         ]),
         network_seconds_per_drape: ev.network_seconds_per_drape,
         batch: ev.batch,
+        workers: ev.workers,
         renders: picks
             .iter()
             .zip(&ids)
@@ -583,9 +585,11 @@ pub fn write_report(
     }
     writeln!(
         md,
-        "Network time in this evaluation: {:.1} ms per drape at batch {} (inputs and both streams; `drape bench speedup` measures the speed-up). Evaluation wall time {:.1} s.",
+        "Network time in this evaluation: {:.1} ms per drape at batch {}, the batch's drapes shared among {} thread{} (inputs and both streams; `drape bench speedup` measures the speed-up). Evaluation wall time {:.1} s.",
         1e3 * ev.network_seconds_per_drape,
         ev.batch,
+        ev.workers,
+        if ev.workers == 1 { "" } else { "s" },
         ev.seconds
     )
     .unwrap();
