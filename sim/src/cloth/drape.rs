@@ -450,9 +450,14 @@ fn edge_strains<'a>(
     })
 }
 
+/// Every mesh edge's strain `l / l0 - 1` at positions `x`, in the model's edge order.
+pub fn edge_strain_values(model: &ClothModel, x: &[Vec3]) -> Vec<f32> {
+    edge_strains(model, x).map(|(_, e)| e).collect()
+}
+
 /// Edge strain statistics of positions `x`.
 pub fn strain(model: &ClothModel, x: &[Vec3]) -> StrainStats {
-    let mut s: Vec<f32> = edge_strains(model, x).map(|(_, e)| e).collect();
+    let mut s = edge_strain_values(model, x);
     if s.is_empty() {
         return StrainStats::default();
     }
