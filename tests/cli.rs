@@ -607,6 +607,12 @@ fn garments_build_once_warp_and_drape_by_name() {
     // How far the drape moved from the warp it started from: the DQS baseline's error.
     let e = c["drapes"][0]["warp_edist_cm"].as_f64().unwrap();
     assert!(e > 0.05 && e < 10.0, "{c}");
+    // One drape: the pooled reading of the strain bar is that drape's own p95.
+    let own = c["drapes"][0]["strain_p95"].as_f64().unwrap();
+    let pooled = c["summary"]["strain_p95_pooled"].as_f64().unwrap();
+    assert!(own > 0.0 && (pooled - own).abs() < 1e-7, "{c}");
+    let over = c["summary"]["pooled_edges_over_3pct"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&over), "{c}");
     let o = check(&["--from-warp", "--warp-only"]);
     assert!(
         !o.status.success() && stderr(&o).contains("cannot be used with"),
