@@ -457,7 +457,11 @@ pub fn edge_strain_values(model: &ClothModel, x: &[Vec3]) -> Vec<f32> {
 
 /// Edge strain statistics of positions `x`.
 pub fn strain(model: &ClothModel, x: &[Vec3]) -> StrainStats {
-    let mut s = edge_strain_values(model, x);
+    strain_stats(edge_strain_values(model, x))
+}
+
+/// Statistics of edge strains `s` (any edges: one drape's, or several drapes' pooled).
+pub fn strain_stats(mut s: Vec<f32>) -> StrainStats {
     if s.is_empty() {
         return StrainStats::default();
     }
