@@ -5,6 +5,7 @@ use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{leaky_relu, softmax};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
+use super::host::{self, Neighbourhoods};
 use crate::topology::Topology;
 
 /// He initialisation (uniform, fan in): keeps the activations' scale through leaky-ReLU
@@ -126,8 +127,8 @@ pub struct Graph {
     pub vertices: usize,
     /// Padded neighbourhood slots per vertex K.
     pub slots: usize,
-    /// Padded neighbourhoods, `[N * K]`.
-    padded: Vec<i64>,
+    /// The padded neighbourhoods and their mask on the host (the inference kernels').
+    pub host: Neighbourhoods,
     /// 1 for used slots, 0 for padding, `[1, N, K, 1]`.
     pub mask: Tensor<4>,
 }
@@ -142,7 +143,11 @@ impl Graph {
             ),
             vertices: t.vertices,
             slots: t.slots,
-            padded: t.padded.clone(),
+            host: Neighbourhoods {
+                padded: t.padded.clone(),
+                mask: t.padded_mask.clone(),
+                slots: t.slots,
+            },
             mask: Tensor::from_data(
                 TensorData::new(t.padded_mask.clone(), [1, t.vertices, t.slots, 1]),
                 device,
@@ -155,7 +160,7 @@ impl Graph {
     pub fn rows(&self, b: usize, device: &Device) -> Tensor<1, Int> {
         let n = self.vertices as i64;
         let idx: Vec<i64> = (0..b as i64)
-            .flat_map(|s| self.padded.iter().map(move |&j| s * n + j))
+            .flat_map(|s| self.host.padded.iter().map(move |&j| s * n + j))
             .collect();
         let len = idx.len();
         Tensor::from_data(TensorData::new(idx, [len]), device)
@@ -223,6 +228,11 @@ impl FeaStConv {
         let [b, n, c] = x.dims();
         let (m, k) = (self.heads, g.slots);
         let ux = self.u.forward(x.clone()); // [B, N, M]
+        if host::host(&x) {
+            let z = host::feast_aggregate(x, ux, self.c.val(), &g.host); // [B, N, M * C]
+            let y = self.lin.forward(z); // [B, N, O]
+            return y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output]);
+        }
         let uj = ux
             .clone()
             .reshape([b * n, m])

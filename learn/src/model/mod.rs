@@ -7,6 +7,7 @@
 //! fusion (point-wise MLP to 3 outputs, the per-vertex translation T^P). Prediction
 //! G^P = M + T^P.
 
+pub mod host;
 mod layers;
 
 pub use layers::{FeaStConv, Graph, Mlp, SplitLinear};
@@ -68,7 +69,7 @@ impl SpatialTransformer {
         let [b, _, _] = x.dims();
         let h = self.mlp.forward(x); // [B, P, C]
         let c = h.dims()[2];
-        let g = h.max_dim(1).reshape([b, c]); // [B, C]
+        let g = host::max_axis1(h).reshape([b, c]); // [B, C]
         let t = self.out.forward(self.head.forward(g)).reshape([b, 3, 3]); // [B, 3, 3]
         let eye = Tensor::<2>::eye(3, &t.device()).unsqueeze_dim::<3>(0);
         t + eye
@@ -117,7 +118,7 @@ impl BodyStream {
         let point = self.mlp2_point.forward(Tensor::cat(vec![f1, xt], 2)); // [B, P, Cp]
         let g = self.mlp2_global.forward(point.clone()); // [B, P, G]
         let gd = g.dims()[2];
-        (point, g.max_dim(1).reshape([b, gd]))
+        (point, host::max_axis1(g).reshape([b, gd]))
     }
 }
 
@@ -333,7 +334,7 @@ impl GarNet {
             Some(convs) => convs.forward(h0, xyz, g), // [B, N, C]
             None => h0,
         };
-        let garment_global = patch.clone().max_dim(1); // [B, 1, C]
+        let garment_global = host::max_axis1(patch.clone()); // [B, 1, C]
         let mut fused = vec![point, patch, garment_global, global];
         // Local body features.
         if let (Some(local_in), Some(body_point)) = (&self.local_in, body_point) {
@@ -347,10 +348,7 @@ impl GarNet {
                 .reshape([b * pd, kp, l])
                 .mean_dim(1)
                 .reshape([b * pd, l]); // [B * P', L]
-            let local = pooled
-                .select(0, input.local_index.clone()) // [B * N * K, L]
-                .reshape([b * n, k, l])
-                .max_dim(1)
+            let local = host::gather_max(pooled, &input.local_index, k) // [B * N, L]
                 .reshape([b, n, l]); // [B, N, L]
             fused.push(local);
         }

@@ -1,0 +1,263 @@
+//! Inference kernels on the CPU: the forward pass's three slowest tensor operations at
+//! batch 1, done as loops over the tensors' data.
+//!
+//! burn-flex reduces a middle axis (`max_dim(1)` of `[A, K, C]`) one output element at a
+//! time, walking the axis with a stride of C: 2.7 ms for GarNet-Local's `[2967, 15, 32]`
+//! local max where a sum over the same axis takes 0.23 ms. FeaStNet's aggregation gathers
+//! `[N, K, C]` neighbour features and runs N tiny `[M, K] x [K, C]` products. Here the max
+//! walks rows in memory order and the aggregation reads each neighbour's features in place
+//! (docs/bench.md, "Inference kernels").
+//!
+//! They are used only where no gradient is wanted: [`host`] is true for tensors off the
+//! autodiff device, and only when no GPU backend is compiled in (where reading the data
+//! back would cost a device round trip). Training takes burn's operations, and
+//! `tests/train.rs` checks that both give the same drape.
+
+use burn::tensor::{Int, Tensor, TensorData};
+use rayon::prelude::*;
+
+/// Rows per rayon task: the loops below are a few hundred operations per row.
+const ROWS_PER_TASK: usize = 256;
+
+/// Whether the forward pass computes `x`'s reductions and aggregation here: on the CPU
+/// backends, without autodiff.
+pub fn host<const D: usize>(x: &Tensor<D>) -> bool {
+    cfg!(not(any(feature = "cuda", feature = "wgpu"))) && !x.is_autodiff()
+}
+
+fn floats<const D: usize>(x: Tensor<D>) -> Vec<f32> {
+    x.into_data().try_into_vec::<f32>().expect("f32 tensor")
+}
+
+fn indices(x: &Tensor<1, Int>) -> Vec<usize> {
+    x.clone()
+        .into_data()
+        .iter::<i64>()
+        .map(|i| i as usize)
+        .collect()
+}
+
+/// Running maximum that keeps a NaN once it has seen one (as `max_dim` does).
+#[inline]
+fn max_into(acc: &mut [f32], row: &[f32]) {
+    for (m, &y) in acc.iter_mut().zip(row) {
+        if y > *m || y.is_nan() && !m.is_nan() {
+            *m = y;
+        }
+    }
+}
+
+/// `x.max_dim(1)`: the maximum over the middle axis.
+///
+/// # Shapes
+/// `[A, K, C]` -> `[A, 1, C]`.
+pub fn max_axis1(x: Tensor<3>) -> Tensor<3> {
+    if !host(&x) {
+        return x.max_dim(1);
+    }
+    let [a, k, c] = x.dims();
+    let device = x.device();
+    let v = floats(x);
+    let mut out = vec![0.0f32; a * c];
+    let reduce = |i: usize, o: &mut [f32]| {
+        let rows = &v[i * k * c..(i + 1) * k * c];
+        o.copy_from_slice(&rows[..c]);
+        for r in rows[c..].chunks_exact(c) {
+            max_into(o, r);
+        }
+    };
+    out.par_chunks_mut(c)
+        .enumerate()
+        .with_min_len(ROWS_PER_TASK)
+        .for_each(|(i, o)| reduce(i, o));
+    Tensor::from_data(TensorData::new(out, [a, 1, c]), &device)
+}
+
+/// `table.select(0, index).reshape([Q, K, L]).max_dim(1)`: for each of Q queries the
+/// feature-wise maximum over the K rows `index` names, without materialising the `[Q * K,
+/// L]` gather.
+///
+/// # Shapes
+/// `table`: `[R, L]`, `index`: `[Q * K]` -> `[Q, L]`.
+pub fn gather_max(table: Tensor<2>, index: &Tensor<1, Int>, k: usize) -> Tensor<2> {
+    let [_, l] = table.dims();
+    let q = index.dims()[0] / k;
+    if !host(&table) {
+        return table
+            .select(0, index.clone())
+            .reshape([q, k, l])
+            .max_dim(1)
+            .reshape([q, l]);
+    }
+    let device = table.device();
+    let t = floats(table);
+    let idx = indices(index);
+    let mut out = vec![0.0f32; q * l];
+    out.par_chunks_mut(l)
+        .enumerate()
+        .with_min_len(ROWS_PER_TASK)
+        .for_each(|(i, o)| {
+            let rows = &idx[i * k..(i + 1) * k];
+            o.copy_from_slice(&t[rows[0] * l..(rows[0] + 1) * l]);
+            for &r in &rows[1..] {
+                max_into(o, &t[r * l..(r + 1) * l]);
+            }
+        });
+    Tensor::from_data(TensorData::new(out, [q, l]), &device)
+}
+
+/// A mesh's padded neighbourhoods on the host ([`crate::topology::Topology::padded`]).
+#[derive(Debug, Clone)]
+pub struct Neighbourhoods {
+    /// Slot `s` of vertex `i` is `padded[i * slots + s]`.
+    pub padded: Vec<i64>,
+    /// 1 for a used slot, 0 for padding.
+    pub mask: Vec<f32>,
+    /// Slots per vertex K.
+    pub slots: usize,
+}
+
+/// FeaStNet's head-weighted neighbourhood sums (before the output map W):
+///
+/// z_i[m] = sum_{j in N_i} q_m(x_i, x_j) x_j, q_m = softmax over the heads of
+/// (u_m . x_j - u_m . x_i + c_m),
+///
+/// the same as [`super::FeaStConv::forward`]'s gather, softmax, mask and batched product.
+///
+/// # Shapes
+/// `x`: `[B, N, C]`, `ux` (u . x per vertex): `[B, N, M]`, `c`: `[M]` -> `[B, N, M * C]`.
+pub fn feast_aggregate(x: Tensor<3>, ux: Tensor<3>, c: Tensor<1>, g: &Neighbourhoods) -> Tensor<3> {
+    let [b, n, ch] = x.dims();
+    let m = ux.dims()[2];
+    let device = x.device();
+    let (x, ux, c) = (floats(x), floats(ux), floats(c));
+    let k = g.slots;
+    let mut z = vec![0.0f32; b * n * m * ch];
+    z.par_chunks_mut(m * ch)
+        .enumerate()
+        .with_min_len(ROWS_PER_TASK / 4)
+        .for_each_init(
+            || vec![0.0f32; m],
+            |q, (row, zi)| {
+                let (s, i) = (row / n, row % n);
+                let base = s * n;
+                let ui = &ux[row * m..(row + 1) * m];
+                for slot in 0..k {
+                    if g.mask[i * k + slot] == 0.0 {
+                        continue;
+                    }
+                    let j = base + g.padded[i * k + slot] as usize;
+                    let uj = &ux[j * m..(j + 1) * m];
+                    let mut top = f32::NEG_INFINITY;
+                    for h in 0..m {
+                        q[h] = uj[h] - ui[h] + c[h];
+                        top = top.max(q[h]);
+                    }
+                    let mut sum = 0.0;
+                    for qh in q.iter_mut() {
+                        *qh = (*qh - top).exp();
+                        sum += *qh;
+                    }
+                    let xj = &x[j * ch..(j + 1) * ch];
+                    for (h, zh) in zi.chunks_exact_mut(ch).enumerate() {
+                        let w = q[h] / sum;
+                        for (o, &v) in zh.iter_mut().zip(xj) {
+                            *o += w * v;
+                        }
+                    }
+                }
+            },
+        );
+    Tensor::from_data(TensorData::new(z, [b, n, m * ch]), &device)
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::Module;
+    use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
+
+    use super::*;
+    use crate::model::{FeaStConv, Graph};
+    use crate::topology::Topology;
+
+    fn close(a: Tensor<3>, b: Tensor<3>) -> f32 {
+        let (a, b) = (floats(a), floats(b));
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs() / (1.0 + y.abs()))
+            .fold(0.0, f32::max)
+    }
+
+    #[test]
+    fn max_over_the_middle_axis_is_burns() {
+        let device = Device::default();
+        device.seed(3);
+        // The forward pass's shapes: a body feature, a garment feature, many small groups.
+        for dims in [[1, 2000, 256], [2, 300, 48], [700, 15, 32]] {
+            let x = Tensor::<3>::random(dims, Distribution::Normal(0.0, 1.0), &device);
+            assert!(host(&x));
+            let got = max_axis1(x.clone());
+            assert_eq!(got.dims(), [dims[0], 1, dims[2]]);
+            assert_eq!(close(got, x.max_dim(1)), 0.0, "{dims:?}");
+        }
+        // A NaN anywhere in a column stays in its maximum, as in max_dim.
+        let mut v = vec![0.5f32; 2 * 3 * 2];
+        v[2] = f32::NAN; // sample 0, row 1, column 0
+        let x = Tensor::<3>::from_data(TensorData::new(v, [2, 3, 2]), &device);
+        let got = floats(max_axis1(x));
+        assert!(got[0].is_nan());
+        assert_eq!(&got[1..], &[0.5, 0.5, 0.5]);
+    }
+
+    #[test]
+    fn gathered_maximum_is_select_then_max_dim() {
+        let device = Device::default();
+        device.seed(4);
+        let (rows, l, q, k) = (200, 32, 500, 15);
+        let table = Tensor::<2>::random([rows, l], Distribution::Normal(0.0, 1.0), &device);
+        let idx: Vec<i64> = (0..q * k).map(|i| ((i * 7919) % rows) as i64).collect();
+        let index = Tensor::<1, Int>::from_data(TensorData::new(idx, [q * k]), &device);
+        let got = gather_max(table.clone(), &index, k);
+        let want = table.select(0, index).reshape([q, k, l]).max_dim(1);
+        assert_eq!(close(got.reshape([q, 1, l]), want), 0.0);
+    }
+
+    /// A FeaStNet convolution on the autodiff device (burn's operations, as in training)
+    /// and the same weights on the plain device (the host aggregation) give the same
+    /// output, padding slots included (a grid's corners have fewer neighbours).
+    #[test]
+    fn feastnet_host_aggregation_is_the_tensor_path() {
+        let ad = Device::default().autodiff();
+        ad.seed(5);
+        // A 12 x 9 grid of vertices, two triangles per cell.
+        let (w, h) = (12u32, 9u32);
+        let mut tris = Vec::new();
+        for y in 0..h - 1 {
+            for x in 0..w - 1 {
+                let v = y * w + x;
+                tris.push([v, v + 1, v + w]);
+                tris.push([v + 1, v + w + 1, v + w]);
+            }
+        }
+        let topo = Topology::new((w * h) as usize, &tris);
+        assert!(topo.padded_mask.contains(&0.0), "some slots are padding");
+        let (c, o, heads, b) = (19, 16, 4, 2);
+        let conv = FeaStConv::new(c, o, heads, false, &ad);
+        let n = topo.vertices;
+        let x = Tensor::<3>::random([b, n, c], Distribution::Normal(0.0, 1.0), &ad);
+
+        let g_ad = Graph::new(&topo, &ad);
+        assert!(!host(&x));
+        let want = conv.forward(x.clone(), &g_ad, &g_ad.rows(b, &ad));
+
+        let plain = ad.clone().inner();
+        let (conv, x) = (conv.valid(), x.inner());
+        let g = Graph::new(&topo, &plain);
+        assert!(host(&x));
+        let got = conv.forward(x, &g, &g.rows(b, &plain));
+        assert_eq!(got.dims(), [b, n, o]);
+        let err = close(got, want.inner());
+        assert!(err < 1e-5, "largest difference {err}");
+    }
+}
