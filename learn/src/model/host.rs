@@ -10,8 +10,8 @@
 //!
 //! They are used only where no gradient is wanted: [`host`] is true for tensors off the
 //! autodiff device, and only when no GPU backend is compiled in (where reading the data
-//! back would cost a device round trip). Training takes burn's operations, and
-//! `tests/train.rs` checks that both give the same drape.
+//! back would cost a device round trip). Training takes burn's operations; the tests below
+//! check each kernel against them.
 
 use burn::tensor::{Int, Tensor, TensorData};
 use rayon::prelude::*;
