@@ -16,6 +16,8 @@
 use burn::tensor::{Int, Tensor, TensorData};
 use rayon::prelude::*;
 
+use super::Graph;
+
 /// Rows per rayon task: the loops below are a few hundred operations per row.
 const ROWS_PER_TASK: usize = 256;
 
@@ -106,27 +108,17 @@ pub fn gather_max(table: Tensor<2>, index: &Tensor<1, Int>, k: usize) -> Tensor<
     Tensor::from_data(TensorData::new(out, [q, l]), &device)
 }
 
-/// A mesh's padded neighbourhoods on the host ([`crate::topology::Topology::padded`]).
-#[derive(Debug, Clone)]
-pub struct Neighbourhoods {
-    /// Slot `s` of vertex `i` is `padded[i * slots + s]`.
-    pub padded: Vec<i64>,
-    /// 1 for a used slot, 0 for padding.
-    pub mask: Vec<f32>,
-    /// Slots per vertex K.
-    pub slots: usize,
-}
-
 /// FeaStNet's head-weighted neighbourhood sums (before the output map W):
 ///
-/// z_i[m] = sum_{j in N_i} q_m(x_i, x_j) x_j, q_m = softmax over the heads of
-/// (u_m . x_j - u_m . x_i + c_m),
+/// `z_i,m = sum_{j in N_i} q_m(x_i, x_j) x_j`, `q_m` = softmax over the heads of
+/// `u_m . x_j - u_m . x_i + c_m`,
 ///
 /// the same as [`super::FeaStConv::forward`]'s gather, softmax, mask and batched product.
 ///
 /// # Shapes
-/// `x`: `[B, N, C]`, `ux` (u . x per vertex): `[B, N, M]`, `c`: `[M]` -> `[B, N, M * C]`.
-pub fn feast_aggregate(x: Tensor<3>, ux: Tensor<3>, c: Tensor<1>, g: &Neighbourhoods) -> Tensor<3> {
+/// `x`: `[B, N, C]`, `ux` (u . x per vertex): `[B, N, M]`, `c`: `[M]` -> `[B, N, M * C]`,
+/// on `g`'s padded neighbourhoods.
+pub fn feast_aggregate(x: Tensor<3>, ux: Tensor<3>, c: Tensor<1>, g: &Graph) -> Tensor<3> {
     let [b, n, ch] = x.dims();
     let m = ux.dims()[2];
     let device = x.device();
@@ -143,7 +135,7 @@ pub fn feast_aggregate(x: Tensor<3>, ux: Tensor<3>, c: Tensor<1>, g: &Neighbourh
                 let base = s * n;
                 let ui = &ux[row * m..(row + 1) * m];
                 for slot in 0..k {
-                    if g.mask[i * k + slot] == 0.0 {
+                    if g.padded_mask[i * k + slot] == 0.0 {
                         continue;
                     }
                     let j = base + g.padded[i * k + slot] as usize;

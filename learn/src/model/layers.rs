@@ -5,7 +5,7 @@ use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{leaky_relu, softmax};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
-use super::host::{self, Neighbourhoods};
+use super::host;
 use crate::topology::Topology;
 
 /// He initialisation (uniform, fan in): keeps the activations' scale through leaky-ReLU
@@ -127,8 +127,11 @@ pub struct Graph {
     pub vertices: usize,
     /// Padded neighbourhood slots per vertex K.
     pub slots: usize,
-    /// The padded neighbourhoods and their mask on the host (the inference kernels').
-    pub host: Neighbourhoods,
+    /// Padded neighbourhoods, `[N * K]`: slot `s` of vertex `i` at `i * K + s`.
+    pub(super) padded: Vec<i64>,
+    /// 1 for used slots, 0 for padding, `[N * K]` (on the host, for
+    /// [`host::feast_aggregate`]).
+    pub(super) padded_mask: Vec<f32>,
     /// 1 for used slots, 0 for padding, `[1, N, K, 1]`.
     pub mask: Tensor<4>,
 }
@@ -143,11 +146,8 @@ impl Graph {
             ),
             vertices: t.vertices,
             slots: t.slots,
-            host: Neighbourhoods {
-                padded: t.padded.clone(),
-                mask: t.padded_mask.clone(),
-                slots: t.slots,
-            },
+            padded: t.padded.clone(),
+            padded_mask: t.padded_mask.clone(),
             mask: Tensor::from_data(
                 TensorData::new(t.padded_mask.clone(), [1, t.vertices, t.slots, 1]),
                 device,
@@ -160,7 +160,7 @@ impl Graph {
     pub fn rows(&self, b: usize, device: &Device) -> Tensor<1, Int> {
         let n = self.vertices as i64;
         let idx: Vec<i64> = (0..b as i64)
-            .flat_map(|s| self.host.padded.iter().map(move |&j| s * n + j))
+            .flat_map(|s| self.padded.iter().map(move |&j| s * n + j))
             .collect();
         let len = idx.len();
         Tensor::from_data(TensorData::new(idx, [len]), device)
@@ -223,32 +223,31 @@ impl FeaStConv {
     /// `[B, N, K, input]`, then per vertex the head-weighted sums as a small batched matrix
     /// product, `[M, K] x [K, input]`, and one linear map from `M * input` to `output`. No
     /// scatter in the forward pass, and the gathered tensor is M times smaller than
-    /// gathering `W_m x_j`.
+    /// gathering `W_m x_j`. Without autodiff on the CPU the head-weighted sums are one loop
+    /// over the neighbours in place instead ([`host::feast_aggregate`]).
     pub fn forward(&self, x: Tensor<3>, g: &Graph, rows: &Tensor<1, Int>) -> Tensor<3> {
         let [b, n, c] = x.dims();
         let (m, k) = (self.heads, g.slots);
         let ux = self.u.forward(x.clone()); // [B, N, M]
-        if host::host(&x) {
-            let z = host::feast_aggregate(x, ux, self.c.val(), &g.host); // [B, N, M * C]
-            let y = self.lin.forward(z); // [B, N, O]
-            return y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output]);
-        }
-        let uj = ux
-            .clone()
-            .reshape([b * n, m])
-            .select(0, rows.clone())
-            .reshape([b, n, k, m]);
-        let logits = uj - ux.unsqueeze_dim::<4>(2) + self.c.val().reshape([1, 1, 1, m]); // [B, N, K, M]
-        let q = softmax(logits, 3) * g.mask.clone(); // [B, N, K, M], padding zeroed
-        let xj = x
-            .reshape([b * n, c])
-            .select(0, rows.clone())
-            .reshape([b * n, k, c]); // [B*N, K, C]
-        let z = q
-            .reshape([b * n, k, m])
-            .swap_dims(1, 2)
-            .matmul(xj) // [B*N, M, C]
-            .reshape([b, n, m * c]);
+        let z = if host::host(&x) {
+            host::feast_aggregate(x, ux, self.c.val(), g)
+        } else {
+            let uj = ux
+                .clone()
+                .reshape([b * n, m])
+                .select(0, rows.clone())
+                .reshape([b, n, k, m]);
+            let logits = uj - ux.unsqueeze_dim::<4>(2) + self.c.val().reshape([1, 1, 1, m]); // [B, N, K, M]
+            let q = softmax(logits, 3) * g.mask.clone(); // [B, N, K, M], padding zeroed
+            let xj = x
+                .reshape([b * n, c])
+                .select(0, rows.clone())
+                .reshape([b * n, k, c]); // [B*N, K, C]
+            q.reshape([b * n, k, m])
+                .swap_dims(1, 2)
+                .matmul(xj) // [B*N, M, C]
+                .reshape([b, n, m * c])
+        }; // [B, N, M * C]
         let y = self.lin.forward(z); // [B, N, O]
         y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output])
     }
