@@ -12,11 +12,10 @@ mod layers;
 
 pub use layers::{FeaStConv, Graph, Mlp, SplitLinear};
 
-use layers::{maybe_norm, normed};
+use layers::{leaky, maybe_norm, normed};
 
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, Linear, LinearConfig};
-use burn::tensor::activation::leaky_relu;
 use burn::tensor::{Device, Int, Tensor};
 
 use crate::config::{ModelConfig, Variant};
@@ -163,7 +162,7 @@ impl ConvStack {
         let rows = g.rows(h.dims()[0], &h.device());
         for (i, conv) in self.blocks.iter().enumerate() {
             let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &rows); // [B, N, C]
-            h = h + leaky_relu(normed(self.norms.get(i), y), self.slope);
+            h = h + leaky(normed(self.norms.get(i), y), self.slope);
         }
         h
     }
@@ -323,7 +322,7 @@ impl GarNet {
         let point = self
             .garment_mlp
             .forward(positional_encoding(xyz.clone(), self.fourier_bands)); // [B, N, Cg]
-        let h0 = leaky_relu(
+        let h0 = leaky(
             normed(
                 self.conv_in_norm.as_ref(),
                 self.conv_in.forward(vec![point.clone(), global.clone()]),
@@ -339,7 +338,7 @@ impl GarNet {
         // Local body features.
         if let (Some(local_in), Some(body_point)) = (&self.local_in, body_point) {
             let [_, p, _] = body_point.dims();
-            let f = leaky_relu(local_in.forward(body_point), self.slope); // [B, P, L]
+            let f = leaky(local_in.forward(body_point), self.slope); // [B, P, L]
             let l = LOCAL_WIDTH;
             let (pd, kp, k) = (self.local_points, self.local_pool_k, self.local_k);
             let pooled = f
@@ -352,7 +351,7 @@ impl GarNet {
                 .reshape([b, n, l]); // [B, N, L]
             fused.push(local);
         }
-        let f = leaky_relu(
+        let f = leaky(
             normed(self.fusion_in_norm.as_ref(), self.fusion_in.forward(fused)),
             self.slope,
         ); // [B, N, F0]
