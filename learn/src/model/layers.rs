@@ -268,3 +268,54 @@ impl FeaStConv {
         y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output])
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::Distribution;
+
+    /// The autodiff form of [`leaky`] gives burn's `leaky_relu` values, and its gradient is 1
+    /// on the positive side and the slope on the negative side.
+    #[test]
+    fn leaky_under_autodiff_is_burns_leaky_relu_with_its_gradient() {
+        let ad = Device::default().autodiff();
+        ad.seed(6);
+        let slope = 0.1;
+        let x = Tensor::<2>::random([64, 37], Distribution::Normal(0.0, 1.0), &ad).require_grad();
+        let y = leaky(x.clone(), slope);
+        let want = leaky_relu(x.clone().inner(), slope);
+        let (got_v, want_v, x_v) = (
+            y.clone().inner().into_data().to_vec::<f32>().unwrap(),
+            want.into_data().to_vec::<f32>().unwrap(),
+            x.clone().inner().into_data().to_vec::<f32>().unwrap(),
+        );
+        let err = got_v
+            .iter()
+            .zip(&want_v)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(err < 1e-6, "largest difference {err}");
+        // d/dx of sum(w * leaky(x)) is w times the local slope.
+        let w = Tensor::<2>::random([64, 37], Distribution::Normal(0.0, 1.0), &ad);
+        let w_v = w.clone().inner().into_data().to_vec::<f32>().unwrap();
+        let grads = (y * w).sum().backward();
+        let gx = x.grad(&grads).expect("x's gradient");
+        let gx_v = gx.into_data().to_vec::<f32>().unwrap();
+        let (mut pos, mut neg) = (0, 0);
+        for ((g, xv), wv) in gx_v.iter().zip(&x_v).zip(&w_v) {
+            let d = if *xv > 0.0 {
+                pos += 1;
+                1.0
+            } else {
+                neg += 1;
+                slope as f32
+            };
+            assert!(
+                (g - d * wv).abs() < 1e-6,
+                "x {xv}: gradient {g}, want {}",
+                d * wv
+            );
+        }
+        assert!(pos > 100 && neg > 100, "both sides sampled: {pos}, {neg}");
+    }
+}
