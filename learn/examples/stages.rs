@@ -52,6 +52,15 @@ fn main() {
     time("FeaStConv forward+backward", 3, || {
         let _ = conv.forward(x.clone(), &g, &rows).sum().backward();
     });
+    time("FeaStConv forward (burn's tensor ops)", 3, || {
+        let _ = conv.forward_with(x.clone(), &g, &rows, false);
+    });
+    time("FeaStConv fwd+bwd (burn's tensor ops)", 3, || {
+        let _ = conv
+            .forward_with(x.clone(), &g, &rows, false)
+            .sum()
+            .backward();
+    });
     let h = Tensor::<3>::random([b, n, w], Distribution::Default, &device).require_grad();
     time("gather [B*N*K, C] forward+backward", 3, || {
         let _ = h

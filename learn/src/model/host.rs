@@ -1,12 +1,12 @@
-//! Inference kernels on the CPU: the forward pass's three slowest tensor operations at
+//! Inference kernels on the CPU: two of the forward pass's slowest tensor operations at
 //! batch 1, done as loops over the tensors' data.
 //!
 //! burn-flex reduces a middle axis (`max_dim(1)` of `[A, K, C]`) one output element at a
 //! time, walking the axis with a stride of C: 2.7 ms for GarNet-Local's `[2967, 15, 32]`
-//! local max where a sum over the same axis takes 0.23 ms. FeaStNet's aggregation gathers
-//! `[N, K, C]` neighbour features and runs N tiny `[M, K] x [K, C]` products. Here the max
-//! walks rows in memory order and the aggregation reads each neighbour's features in place
-//! (docs/bench.md, "Inference kernels").
+//! local max where a sum over the same axis takes 0.23 ms. Here the max walks rows in
+//! memory order, and the local max reads each pooled body feature in place instead of
+//! gathering them (docs/bench.md, "Inference kernels"). FeaStNet's aggregation, the third
+//! such kernel, is an operation with its own backward in [`super::feast`].
 //!
 //! They are used only where no gradient is wanted: [`host`] is true for tensors off the
 //! autodiff device, and only when no GPU backend is compiled in (where reading the data
@@ -16,15 +16,19 @@
 use burn::tensor::{Int, Tensor, TensorData};
 use rayon::prelude::*;
 
-use super::Graph;
-
 /// Rows per rayon task: the loops below are a few hundred operations per row.
 const ROWS_PER_TASK: usize = 256;
 
 /// Whether the forward pass computes `x`'s reductions and aggregation here: on the CPU
 /// backends, without autodiff.
 pub fn host<const D: usize>(x: &Tensor<D>) -> bool {
-    cfg!(not(any(feature = "cuda", feature = "wgpu"))) && !x.is_autodiff()
+    cpu_build() && !x.is_autodiff()
+}
+
+/// Whether this build has only CPU backends (no GPU backend compiled in), where reading a
+/// tensor's data costs no device round trip.
+pub const fn cpu_build() -> bool {
+    cfg!(not(any(feature = "cuda", feature = "wgpu")))
 }
 
 fn floats<const D: usize>(x: Tensor<D>) -> Vec<f32> {
@@ -108,69 +112,11 @@ pub fn gather_max(table: Tensor<2>, index: &Tensor<1, Int>, k: usize) -> Tensor<
     Tensor::from_data(TensorData::new(out, [q, l]), &device)
 }
 
-/// FeaStNet's head-weighted neighbourhood sums (before the output map W):
-///
-/// `z_i,m = sum_{j in N_i} q_m(x_i, x_j) x_j`, `q_m` = softmax over the heads of
-/// `u_m . x_j - u_m . x_i + c_m`,
-///
-/// the same as [`super::FeaStConv::forward`]'s gather, softmax, mask and batched product.
-///
-/// # Shapes
-/// `x`: `[B, N, C]`, `ux` (u . x per vertex): `[B, N, M]`, `c`: `[M]` -> `[B, N, M * C]`,
-/// on `g`'s padded neighbourhoods.
-pub fn feast_aggregate(x: Tensor<3>, ux: Tensor<3>, c: Tensor<1>, g: &Graph) -> Tensor<3> {
-    let [b, n, ch] = x.dims();
-    let m = ux.dims()[2];
-    let device = x.device();
-    let (x, ux, c) = (floats(x), floats(ux), floats(c));
-    let k = g.slots;
-    let mut z = vec![0.0f32; b * n * m * ch];
-    z.par_chunks_mut(m * ch)
-        .enumerate()
-        .with_min_len(ROWS_PER_TASK / 4)
-        .for_each_init(
-            || vec![0.0f32; m],
-            |q, (row, zi)| {
-                let (s, i) = (row / n, row % n);
-                let base = s * n;
-                let ui = &ux[row * m..(row + 1) * m];
-                for slot in 0..k {
-                    if g.padded_mask[i * k + slot] == 0.0 {
-                        continue;
-                    }
-                    let j = base + g.padded[i * k + slot] as usize;
-                    let uj = &ux[j * m..(j + 1) * m];
-                    let mut top = f32::NEG_INFINITY;
-                    for h in 0..m {
-                        q[h] = uj[h] - ui[h] + c[h];
-                        top = top.max(q[h]);
-                    }
-                    let mut sum = 0.0;
-                    for qh in q.iter_mut() {
-                        *qh = (*qh - top).exp();
-                        sum += *qh;
-                    }
-                    let xj = &x[j * ch..(j + 1) * ch];
-                    for (h, zh) in zi.chunks_exact_mut(ch).enumerate() {
-                        let w = q[h] / sum;
-                        for (o, &v) in zh.iter_mut().zip(xj) {
-                            *o += w * v;
-                        }
-                    }
-                }
-            },
-        );
-    Tensor::from_data(TensorData::new(z, [b, n, m * ch]), &device)
-}
-
 #[cfg(test)]
 mod tests {
-    use burn::module::Module;
     use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
 
     use super::*;
-    use crate::model::{FeaStConv, Graph};
-    use crate::topology::Topology;
 
     fn close(a: Tensor<3>, b: Tensor<3>) -> f32 {
         let (a, b) = (floats(a), floats(b));
@@ -213,43 +159,5 @@ mod tests {
         let got = gather_max(table.clone(), &index, k);
         let want = table.select(0, index).reshape([q, k, l]).max_dim(1);
         assert_eq!(close(got.reshape([q, 1, l]), want), 0.0);
-    }
-
-    /// A FeaStNet convolution on the autodiff device (burn's operations, as in training)
-    /// and the same weights on the plain device (the host aggregation) give the same
-    /// output, padding slots included (a grid's corners have fewer neighbours).
-    #[test]
-    fn feastnet_host_aggregation_is_the_tensor_path() {
-        let ad = Device::default().autodiff();
-        ad.seed(5);
-        // A 12 x 9 grid of vertices, two triangles per cell.
-        let (w, h) = (12u32, 9u32);
-        let mut tris = Vec::new();
-        for y in 0..h - 1 {
-            for x in 0..w - 1 {
-                let v = y * w + x;
-                tris.push([v, v + 1, v + w]);
-                tris.push([v + 1, v + w + 1, v + w]);
-            }
-        }
-        let topo = Topology::new((w * h) as usize, &tris);
-        assert!(topo.padded_mask.contains(&0.0), "some slots are padding");
-        let (c, o, heads, b) = (19, 16, 4, 2);
-        let conv = FeaStConv::new(c, o, heads, false, &ad);
-        let n = topo.vertices;
-        let x = Tensor::<3>::random([b, n, c], Distribution::Normal(0.0, 1.0), &ad);
-
-        let g_ad = Graph::new(&topo, &ad);
-        assert!(!host(&x));
-        let want = conv.forward(x.clone(), &g_ad, &g_ad.rows(b, &ad));
-
-        let plain = ad.clone().inner();
-        let (conv, x) = (conv.valid(), x.inner());
-        let g = Graph::new(&topo, &plain);
-        assert!(host(&x));
-        let got = conv.forward(x, &g, &g.rows(b, &plain));
-        assert_eq!(got.dims(), [b, n, o]);
-        let err = close(got, want.inner());
-        assert!(err < 1e-5, "largest difference {err}");
     }
 }

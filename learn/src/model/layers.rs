@@ -5,6 +5,9 @@ use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{leaky_relu, relu, softmax};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
+use std::sync::Arc;
+
+use super::feast::{self, Slots};
 use super::host;
 use crate::topology::Topology;
 
@@ -143,11 +146,8 @@ pub struct Graph {
     pub vertices: usize,
     /// Padded neighbourhood slots per vertex K.
     pub slots: usize,
-    /// Padded neighbourhoods, `[N * K]`: slot `s` of vertex `i` at `i * K + s`.
-    pub(super) padded: Vec<i64>,
-    /// 1 for used slots, 0 for padding, `[N * K]` (on the host, for
-    /// [`host::feast_aggregate`]).
-    pub(super) padded_mask: Vec<f32>,
+    /// Padded neighbourhoods on the host, for [`feast::aggregate`] and [`Graph::rows`].
+    pub(super) host_slots: Arc<Slots>,
     /// 1 for used slots, 0 for padding, `[1, N, K, 1]`.
     pub mask: Tensor<4>,
 }
@@ -162,8 +162,12 @@ impl Graph {
             ),
             vertices: t.vertices,
             slots: t.slots,
-            padded: t.padded.clone(),
-            padded_mask: t.padded_mask.clone(),
+            host_slots: Arc::new(Slots {
+                vertices: t.vertices,
+                k: t.slots,
+                index: t.padded.iter().map(|&j| j as u32).collect(),
+                used: t.padded_mask.iter().map(|&w| w != 0.0).collect(),
+            }),
             mask: Tensor::from_data(
                 TensorData::new(t.padded_mask.clone(), [1, t.vertices, t.slots, 1]),
                 device,
@@ -176,7 +180,12 @@ impl Graph {
     pub fn rows(&self, b: usize, device: &Device) -> Tensor<1, Int> {
         let n = self.vertices as i64;
         let idx: Vec<i64> = (0..b as i64)
-            .flat_map(|s| self.padded.iter().map(move |&j| s * n + j))
+            .flat_map(|s| {
+                self.host_slots
+                    .index
+                    .iter()
+                    .map(move |&j| s * n + i64::from(j))
+            })
             .collect();
         let len = idx.len();
         Tensor::from_data(TensorData::new(idx, [len]), device)
@@ -192,13 +201,13 @@ impl Graph {
 #[derive(Module, Debug)]
 pub struct FeaStConv {
     /// W: the M per-head maps stacked, heads x input -> output, no bias.
-    lin: Linear,
+    pub(super) lin: Linear,
     /// u: input -> heads, no bias.
-    u: Linear,
+    pub(super) u: Linear,
     /// c, `[heads]`.
-    c: Param<Tensor<1>>,
+    pub(super) c: Param<Tensor<1>>,
     /// b, `[output]`.
-    bias: Param<Tensor<1>>,
+    pub(super) bias: Param<Tensor<1>>,
     #[module(skip)]
     heads: usize,
     #[module(skip)]
@@ -235,37 +244,64 @@ impl FeaStConv {
     /// # Shapes
     /// `x`: `[B, N, input]`, `rows`: [`Graph::rows`] for this B -> `[B, N, output]`.
     ///
-    /// Computed on padded neighbourhoods (K slots per vertex): one gather of the inputs,
-    /// `[B, N, K, input]`, then per vertex the head-weighted sums as a small batched matrix
-    /// product, `[M, K] x [K, input]`, and one linear map from `M * input` to `output`. No
-    /// scatter in the forward pass, and the gathered tensor is M times smaller than
-    /// gathering `W_m x_j`. Without autodiff on the CPU the head-weighted sums are one loop
-    /// over the neighbours in place instead ([`host::feast_aggregate`]).
+    /// The head-weighted neighbourhood sums are one operation with its own backward on the
+    /// CPU ([`feast::aggregate`]: loops over each vertex's neighbours in place), and burn's
+    /// tensor operations on a GPU ([`FeaStConv::aggregate_tensors`]); then one linear map from
+    /// `M * input` to `output`.
     pub fn forward(&self, x: Tensor<3>, g: &Graph, rows: &Tensor<1, Int>) -> Tensor<3> {
-        let [b, n, c] = x.dims();
-        let (m, k) = (self.heads, g.slots);
+        self.forward_with(x, g, rows, host::cpu_build())
+    }
+
+    /// [`FeaStConv::forward`] with the fused aggregation (`fused`, CPU backends only) or
+    /// burn's tensor operations, whichever the build: for tests and benchmarks.
+    pub fn forward_with(
+        &self,
+        x: Tensor<3>,
+        g: &Graph,
+        rows: &Tensor<1, Int>,
+        fused: bool,
+    ) -> Tensor<3> {
         let ux = self.u.forward(x.clone()); // [B, N, M]
-        let z = if host::host(&x) {
-            host::feast_aggregate(x, ux, self.c.val(), g)
+        let z = if fused {
+            feast::aggregate(x, ux, self.c.val(), &g.host_slots)
         } else {
-            let uj = ux
-                .clone()
-                .reshape([b * n, m])
-                .select(0, rows.clone())
-                .reshape([b, n, k, m]);
-            let logits = uj - ux.unsqueeze_dim::<4>(2) + self.c.val().reshape([1, 1, 1, m]); // [B, N, K, M]
-            let q = softmax(logits, 3) * g.mask.clone(); // [B, N, K, M], padding zeroed
-            let xj = x
-                .reshape([b * n, c])
-                .select(0, rows.clone())
-                .reshape([b * n, k, c]); // [B*N, K, C]
-            q.reshape([b * n, k, m])
-                .swap_dims(1, 2)
-                .matmul(xj) // [B*N, M, C]
-                .reshape([b, n, m * c])
+            self.aggregate_tensors(x, ux, g, rows)
         }; // [B, N, M * C]
         let y = self.lin.forward(z); // [B, N, O]
         y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output])
+    }
+
+    /// The head-weighted sums with burn's tensor operations, on padded neighbourhoods (K
+    /// slots per vertex): one gather of the inputs, `[B, N, K, input]`, then per vertex a
+    /// small batched matrix product, `[M, K] x [K, input]`. No scatter in the forward pass,
+    /// and the gathered tensor is M times smaller than gathering `W_m x_j`.
+    ///
+    /// # Shapes
+    /// `x`: `[B, N, C]`, `ux`: `[B, N, M]` -> `[B, N, M * C]`.
+    fn aggregate_tensors(
+        &self,
+        x: Tensor<3>,
+        ux: Tensor<3>,
+        g: &Graph,
+        rows: &Tensor<1, Int>,
+    ) -> Tensor<3> {
+        let [b, n, c] = x.dims();
+        let (m, k) = (self.heads, g.slots);
+        let uj = ux
+            .clone()
+            .reshape([b * n, m])
+            .select(0, rows.clone())
+            .reshape([b, n, k, m]);
+        let logits = uj - ux.unsqueeze_dim::<4>(2) + self.c.val().reshape([1, 1, 1, m]); // [B, N, K, M]
+        let q = softmax(logits, 3) * g.mask.clone(); // [B, N, K, M], padding zeroed
+        let xj = x
+            .reshape([b * n, c])
+            .select(0, rows.clone())
+            .reshape([b * n, k, c]); // [B*N, K, C]
+        q.reshape([b * n, k, m])
+            .swap_dims(1, 2)
+            .matmul(xj) // [B*N, M, C]
+            .reshape([b, n, m * c])
     }
 }
 
@@ -285,9 +321,9 @@ mod tests {
         let y = leaky(x.clone(), slope);
         let want = leaky_relu(x.clone().inner(), slope);
         let (got_v, want_v, x_v) = (
-            y.clone().inner().into_data().to_vec::<f32>().unwrap(),
-            want.into_data().to_vec::<f32>().unwrap(),
-            x.clone().inner().into_data().to_vec::<f32>().unwrap(),
+            y.clone().inner().into_data().try_to_vec::<f32>().unwrap(),
+            want.into_data().try_to_vec::<f32>().unwrap(),
+            x.clone().inner().into_data().try_to_vec::<f32>().unwrap(),
         );
         let err = got_v
             .iter()
@@ -297,10 +333,10 @@ mod tests {
         assert!(err < 1e-6, "largest difference {err}");
         // d/dx of sum(w * leaky(x)) is w times the local slope.
         let w = Tensor::<2>::random([64, 37], Distribution::Normal(0.0, 1.0), &ad);
-        let w_v = w.clone().inner().into_data().to_vec::<f32>().unwrap();
+        let w_v = w.clone().inner().into_data().try_to_vec::<f32>().unwrap();
         let grads = (y * w).sum().backward();
         let gx = x.grad(&grads).expect("x's gradient");
-        let gx_v = gx.into_data().to_vec::<f32>().unwrap();
+        let gx_v = gx.into_data().try_to_vec::<f32>().unwrap();
         let (mut pos, mut neg) = (0, 0);
         for ((g, xv), wv) in gx_v.iter().zip(&x_v).zip(&w_v) {
             let d = if *xv > 0.0 {

@@ -7,6 +7,7 @@
 //! fusion (point-wise MLP to 3 outputs, the per-vertex translation T^P). Prediction
 //! G^P = M + T^P.
 
+pub mod feast;
 pub mod host;
 mod layers;
 

@@ -1,0 +1,466 @@
+//! FeaStNet's head-weighted neighbourhood sums as one operation with its own backward pass,
+//! on the CPU backends.
+//!
+//! `z_i,m = sum_{j in N_i} q_m(i, j) x_j`, `q_m` = softmax over the M heads of
+//! `u_m . x_j - u_m . x_i + c_m`, summed over the used slots of vertex i's padded
+//! neighbourhood (the output map W, the 1 / |N_i| and the bias follow in
+//! [`super::FeaStConv::forward`]).
+//!
+//! Written with burn's tensor operations this is a gather of `[B, N, K, C]` neighbour
+//! features, a softmax over `[B, N, K, M]` and one `[M, K] x [K, C]` matrix product per vertex:
+//! on burn-flex each of those B x N products (and the two per vertex in the backward pass) is
+//! a separate `gemm` call whose fixed cost outweighs its 2,000 multiply-adds, 30% of a
+//! GarNet-Local training step (docs/bench.md, "FeaStNet's aggregation as one operation").
+//! Here forward and backward are loops over each vertex's neighbours in place, and the
+//! backward pass recomputes q instead of keeping `[B, N, K, M]`.
+//!
+//! The operation is a burn backend extension ([`FeastOps`]): the CPU backends run the loops
+//! on the tensors' data; under autodiff [`FeastOps for Autodiff`](FeastOps) records
+//! [`feast_backward`] as the operation's backward. GPU builds keep the tensor formulation.
+
+use std::sync::Arc;
+
+use burn::backend::autodiff::Autodiff;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Backend, Dispatch, TensorMetadata, backend_extension};
+use burn::tensor::{Tensor, TensorData};
+use rayon::prelude::*;
+
+/// Vertices per rayon task in the forward pass (each is a few thousand multiply-adds).
+const VERTICES_PER_TASK: usize = 64;
+
+/// A mesh's padded neighbourhoods on the host: slot `s` of vertex `i` at `i * k + s`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Slots {
+    /// Vertices N.
+    pub vertices: usize,
+    /// Slots per vertex K.
+    pub k: usize,
+    /// Neighbour of each slot, `[N * K]` (padding slots name some vertex; their `used` is
+    /// false).
+    pub index: Vec<u32>,
+    /// Whether each slot is a neighbour (true) or padding, `[N * K]`.
+    pub used: Vec<bool>,
+}
+
+/// The sizes of one aggregation: batch B, vertices N, features C, heads M.
+#[derive(Debug, Clone, Copy)]
+struct Dims {
+    b: usize,
+    n: usize,
+    c: usize,
+    m: usize,
+}
+
+impl Dims {
+    fn of(x: &[usize], ux: &[usize], slots: &Slots) -> Self {
+        assert_eq!(x.len(), 3, "x is [B, N, C]");
+        assert_eq!(ux.len(), 3, "ux is [B, N, M]");
+        assert_eq!(
+            (x[0], x[1]),
+            (ux[0], ux[1]),
+            "x and ux disagree on batch or vertices"
+        );
+        assert_eq!(x[1], slots.vertices, "x's vertices are not the mesh's");
+        Self {
+            b: x[0],
+            n: x[1],
+            c: x[2],
+            m: ux[2],
+        }
+    }
+}
+
+/// q over the heads for one slot: softmax of `uj - ui + c`, into `q`.
+#[inline]
+fn weights(ui: &[f32], uj: &[f32], c: &[f32], q: &mut [f32]) {
+    let mut top = f32::NEG_INFINITY;
+    for h in 0..q.len() {
+        q[h] = uj[h] - ui[h] + c[h];
+        top = top.max(q[h]);
+    }
+    let mut sum = 0.0;
+    for qh in q.iter_mut() {
+        *qh = (*qh - top).exp();
+        sum += *qh;
+    }
+    for qh in q.iter_mut() {
+        *qh /= sum;
+    }
+}
+
+/// The forward pass on the host.
+///
+/// # Shapes
+/// `x`: `[B, N, C]`, `ux`: `[B, N, M]`, `c`: `[M]` -> `[B, N, M * C]` (flattened).
+pub fn feast_forward(
+    x: &[f32],
+    ux: &[f32],
+    c: &[f32],
+    slots: &Slots,
+    [b, n, ch, m]: [usize; 4],
+) -> Vec<f32> {
+    let k = slots.k;
+    let mut z = vec![0.0f32; b * n * m * ch];
+    z.par_chunks_mut(m * ch)
+        .enumerate()
+        .with_min_len(VERTICES_PER_TASK)
+        .for_each_init(
+            || vec![0.0f32; m],
+            |q, (row, zi)| {
+                let (s, i) = (row / n, row % n);
+                let base = s * n;
+                let ui = &ux[row * m..(row + 1) * m];
+                for slot in i * k..(i + 1) * k {
+                    if !slots.used[slot] {
+                        continue;
+                    }
+                    let j = base + slots.index[slot] as usize;
+                    weights(ui, &ux[j * m..(j + 1) * m], c, q);
+                    let xj = &x[j * ch..(j + 1) * ch];
+                    for (zh, &w) in zi.chunks_exact_mut(ch).zip(q.iter()) {
+                        for (o, &v) in zh.iter_mut().zip(xj) {
+                            *o += w * v;
+                        }
+                    }
+                }
+            },
+        );
+    z
+}
+
+/// The gradients of the forward pass's inputs from the output's gradient `gz`.
+///
+/// With `g_m = gz_i,m . x_j` per used slot, the softmax's backward gives
+/// `dl_m = q_m (g_m - sum_h q_h g_h)` for the logit `u_m . x_j - u_m . x_i + c_m`, so
+/// `d ux_j += dl`, `d ux_i -= dl`, `d c += dl`, and `d x_j += sum_m q_m gz_i,m`. The
+/// contributions land on the neighbours j: the batch items run in parallel, each item's
+/// vertices in turn.
+///
+/// # Shapes
+/// As [`feast_forward`]; `gz`: `[B, N, M * C]` -> (`[B, N, C]`, `[B, N, M]`, `[M]`).
+pub fn feast_backward(
+    x: &[f32],
+    ux: &[f32],
+    c: &[f32],
+    gz: &[f32],
+    slots: &Slots,
+    [b, n, ch, m]: [usize; 4],
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let k = slots.k;
+    let mut gx = vec![0.0f32; b * n * ch];
+    let mut gux = vec![0.0f32; b * n * m];
+    let gc_parts: Vec<Vec<f32>> = gx
+        .par_chunks_mut(n * ch)
+        .zip(gux.par_chunks_mut(n * m))
+        .enumerate()
+        .map(|(s, (gxs, guxs))| {
+            let xs = &x[s * n * ch..(s + 1) * n * ch];
+            let uxs = &ux[s * n * m..(s + 1) * n * m];
+            let gzs = &gz[s * n * m * ch..(s + 1) * n * m * ch];
+            let mut gc = vec![0.0f32; m];
+            let (mut q, mut g) = (vec![0.0f32; m], vec![0.0f32; m]);
+            for i in 0..n {
+                let ui = &uxs[i * m..(i + 1) * m];
+                let gzi = &gzs[i * m * ch..(i + 1) * m * ch];
+                for slot in i * k..(i + 1) * k {
+                    if !slots.used[slot] {
+                        continue;
+                    }
+                    let j = slots.index[slot] as usize;
+                    weights(ui, &uxs[j * m..(j + 1) * m], c, &mut q);
+                    let xj = &xs[j * ch..(j + 1) * ch];
+                    let mut dot = 0.0;
+                    for h in 0..m {
+                        let gzh = &gzi[h * ch..(h + 1) * ch];
+                        g[h] = gzh.iter().zip(xj).map(|(a, b)| a * b).sum::<f32>();
+                        dot += q[h] * g[h];
+                        let gxj = &mut gxs[j * ch..(j + 1) * ch];
+                        for (o, &v) in gxj.iter_mut().zip(gzh) {
+                            *o += q[h] * v;
+                        }
+                    }
+                    for h in 0..m {
+                        let dl = q[h] * (g[h] - dot);
+                        guxs[j * m + h] += dl;
+                        guxs[i * m + h] -= dl;
+                        gc[h] += dl;
+                    }
+                }
+            }
+            gc
+        })
+        .collect();
+    let mut gc = vec![0.0f32; m];
+    for part in gc_parts {
+        for (o, v) in gc.iter_mut().zip(part) {
+            *o += v;
+        }
+    }
+    (gx, gux, gc)
+}
+
+/// Runs a backend future that is ready at once (the CPU backends' data reads).
+fn ready<T>(f: impl Future<Output = T>) -> T {
+    let mut f = std::pin::pin!(f);
+    let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+    match f.as_mut().poll(&mut cx) {
+        std::task::Poll::Ready(v) => v,
+        std::task::Poll::Pending => panic!("a CPU backend's tensor read was not ready"),
+    }
+}
+
+fn host_floats<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
+    ready(B::float_into_data(t))
+        .expect("reading a tensor on the CPU")
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("f32 data")
+}
+
+fn to_backend<B: Backend>(v: Vec<f32>, shape: Vec<usize>, like: &FloatTensor<B>) -> FloatTensor<B> {
+    B::float_from_data(TensorData::new(v, shape), &like.device())
+}
+
+/// FeaStNet's aggregation as a backend operation (see the module's documentation).
+#[backend_extension(
+    Flex: cfg(feature = "flex"),
+    NdArray: cfg(feature = "ndarray"),
+    Autodiff
+)]
+pub trait FeastOps: Backend {
+    /// [`feast_forward`] on the backend's tensors: `x` `[B, N, C]`, `ux` `[B, N, M]`, `c`
+    /// `[M]` -> `[B, N, M * C]`.
+    fn feast_aggregate(
+        x: FloatTensor<Self>,
+        ux: FloatTensor<Self>,
+        c: FloatTensor<Self>,
+        slots: Arc<Slots>,
+    ) -> FloatTensor<Self> {
+        let d = Dims::of(&x.shape(), &ux.shape(), &slots);
+        let like = x.clone();
+        let z = feast_forward(
+            &host_floats::<Self>(x),
+            &host_floats::<Self>(ux),
+            &host_floats::<Self>(c),
+            &slots,
+            [d.b, d.n, d.c, d.m],
+        );
+        to_backend::<Self>(z, vec![d.b, d.n, d.m * d.c], &like)
+    }
+
+    /// [`feast_backward`] on the backend's tensors: the gradients of `x`, `ux` and `c`.
+    fn feast_aggregate_backward(
+        x: FloatTensor<Self>,
+        ux: FloatTensor<Self>,
+        c: FloatTensor<Self>,
+        gz: FloatTensor<Self>,
+        slots: Arc<Slots>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let d = Dims::of(&x.shape(), &ux.shape(), &slots);
+        let like = x.clone();
+        let (gx, gux, gc) = feast_backward(
+            &host_floats::<Self>(x),
+            &host_floats::<Self>(ux),
+            &host_floats::<Self>(c),
+            &host_floats::<Self>(gz),
+            &slots,
+            [d.b, d.n, d.c, d.m],
+        );
+        (
+            to_backend::<Self>(gx, vec![d.b, d.n, d.c], &like),
+            to_backend::<Self>(gux, vec![d.b, d.n, d.m], &like),
+            to_backend::<Self>(gc, vec![d.m], &like),
+        )
+    }
+}
+
+#[cfg(feature = "flex")]
+impl FeastOps for burn::backend::Flex {}
+#[cfg(feature = "ndarray")]
+impl FeastOps for burn::backend::NdArray {}
+
+/// The backward step recorded for [`FeastOps::feast_aggregate`] under autodiff.
+#[derive(Debug)]
+struct Aggregate;
+
+impl<B: Backend + FeastOps> Backward<B, 3> for Aggregate {
+    /// The inputs (q is recomputed from them) and the neighbourhoods.
+    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, Arc<Slots>);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let (x, ux, c, slots) = ops.state;
+        let gz = grads.consume::<B>(&ops.node);
+        let (gx, gux, gc) = B::feast_aggregate_backward(x, ux, c, gz, slots);
+        let [px, pux, pc] = ops.parents;
+        for (parent, grad) in [(px, gx), (pux, gux), (pc, gc)] {
+            if let Some(node) = parent {
+                grads.register::<B>(node.id, grad);
+            }
+        }
+    }
+}
+
+impl<B: Backend + FeastOps, C: CheckpointStrategy> FeastOps for Autodiff<B, C> {
+    fn feast_aggregate(
+        x: FloatTensor<Self>,
+        ux: FloatTensor<Self>,
+        c: FloatTensor<Self>,
+        slots: Arc<Slots>,
+    ) -> FloatTensor<Self> {
+        let (x, x_node) = x.into_parts();
+        let (ux, ux_node) = ux.into_parts();
+        let (c, c_node) = c.into_parts();
+        let z = B::feast_aggregate(x.clone(), ux.clone(), c.clone(), slots.clone());
+        match Aggregate
+            .prepare::<C>([x_node, ux_node, c_node])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish((x, ux, c, slots), z),
+            OpsKind::UnTracked(prep) => prep.finish(z),
+        }
+    }
+}
+
+/// [`FeastOps::feast_aggregate`] on high-level tensors.
+///
+/// # Shapes
+/// `x`: `[B, N, C]`, `ux`: `[B, N, M]`, `c`: `[M]` -> `[B, N, M * C]`.
+pub fn aggregate(x: Tensor<3>, ux: Tensor<3>, c: Tensor<1>, slots: &Arc<Slots>) -> Tensor<3> {
+    Tensor::from_dispatch(<Dispatch as FeastOps>::feast_aggregate(
+        x.into_dispatch(),
+        ux.into_dispatch(),
+        c.into_dispatch(),
+        slots.clone(),
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::{Module, Param};
+    use burn::tensor::{Device, Distribution, Tensor};
+
+    use crate::model::{FeaStConv, Graph};
+    use crate::topology::Topology;
+
+    fn floats<const D: usize>(x: Tensor<D>) -> Vec<f32> {
+        x.into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap()
+    }
+
+    /// Largest difference relative to the larger tensor's largest magnitude.
+    fn rel(a: Vec<f32>, b: Vec<f32>) -> f32 {
+        assert_eq!(a.len(), b.len());
+        let scale = b.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
+        a.iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+            / scale
+    }
+
+    /// A 12 x 9 grid of vertices, two triangles per cell: boundary vertices have fewer
+    /// neighbours, so some slots are padding.
+    fn grid() -> Topology {
+        let (w, h) = (12u32, 9u32);
+        let mut tris = Vec::new();
+        for y in 0..h - 1 {
+            for x in 0..w - 1 {
+                let v = y * w + x;
+                tris.push([v, v + 1, v + w]);
+                tris.push([v + 1, v + w + 1, v + w]);
+            }
+        }
+        let topo = Topology::new((w * h) as usize, &tris);
+        assert!(topo.padded_mask.contains(&0.0), "some slots are padding");
+        topo
+    }
+
+    /// The fused operation against burn's tensor formulation, on the autodiff device: the
+    /// convolution's output, and the gradients of its input and of all its parameters
+    /// (u and c are reached only through the aggregation's backward).
+    #[test]
+    fn fused_aggregation_and_its_backward_are_the_tensor_formulation() {
+        let ad = Device::default().autodiff();
+        ad.seed(5);
+        let topo = grid();
+        let (c, o, heads, b) = (19, 16, 4, 2);
+        let mut conv = FeaStConv::new(c, o, heads, false, &ad);
+        // Larger head biases than the initialisation's, so the softmax is far from uniform.
+        let c_big = conv.c.val().inner() * 20.0;
+        conv.c = Param::from_tensor(Tensor::from_inner(c_big).require_grad());
+        let n = topo.vertices;
+        let g = Graph::new(&topo, &ad);
+        let rows = g.rows(b, &ad);
+        let x = Tensor::<3>::random([b, n, c], Distribution::Normal(0.0, 1.0), &ad).require_grad();
+        let w = Tensor::<3>::random([b, n, o], Distribution::Normal(0.0, 1.0), &ad);
+
+        let fused = conv.forward_with(x.clone(), &g, &rows, true);
+        let tensors = conv.forward_with(x.clone(), &g, &rows, false);
+        assert_eq!(fused.dims(), [b, n, o]);
+        let err = rel(
+            floats(fused.clone().inner()),
+            floats(tensors.clone().inner()),
+        );
+        assert!(err < 1e-5, "outputs differ by {err}");
+
+        let g_fused = (fused * w.clone()).sum().backward();
+        let g_tensors = (tensors * w).sum().backward();
+        let grad = |t: Option<Vec<f32>>, name: &str| t.unwrap_or_else(|| panic!("{name}"));
+        let pairs = [
+            (
+                "x",
+                x.grad(&g_fused).map(floats),
+                x.grad(&g_tensors).map(floats),
+            ),
+            (
+                "u",
+                conv.u.weight.grad(&g_fused).map(floats),
+                conv.u.weight.grad(&g_tensors).map(floats),
+            ),
+            (
+                "c",
+                conv.c.grad(&g_fused).map(floats),
+                conv.c.grad(&g_tensors).map(floats),
+            ),
+            (
+                "W",
+                conv.lin.weight.grad(&g_fused).map(floats),
+                conv.lin.weight.grad(&g_tensors).map(floats),
+            ),
+        ];
+        for (name, a, b) in pairs {
+            let err = rel(grad(a, name), grad(b, name));
+            assert!(err < 1e-4, "{name}'s gradients differ by {err}");
+        }
+    }
+
+    /// Off the autodiff device the same operation gives the autodiff device's values.
+    #[test]
+    fn fused_aggregation_without_autodiff_is_the_tensor_formulation() {
+        let ad = Device::default().autodiff();
+        ad.seed(7);
+        let topo = grid();
+        let (c, o, heads, b) = (19, 16, 4, 2);
+        let conv = FeaStConv::new(c, o, heads, false, &ad);
+        let n = topo.vertices;
+        let x = Tensor::<3>::random([b, n, c], Distribution::Normal(0.0, 1.0), &ad);
+        let g_ad = Graph::new(&topo, &ad);
+        let rows = g_ad.rows(b, &ad);
+        let want = conv.forward_with(x.clone(), &g_ad, &rows, false);
+
+        let plain = ad.clone().inner();
+        let (conv, x) = (conv.valid(), x.inner());
+        let g = Graph::new(&topo, &plain);
+        let got = conv.forward(x, &g, &g.rows(b, &plain));
+        let err = rel(floats(got), floats(want.inner()));
+        assert!(err < 1e-5, "largest difference {err}");
+    }
+}
