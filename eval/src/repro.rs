@@ -1323,15 +1323,19 @@ pub fn write_report(
 mod tests {
     use super::*;
 
-    fn scratch(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("drape-repro-{name}-{}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
-        d.join("stages.json")
+    /// A ledger path in a fresh folder, removed when the returned guard drops.
+    fn scratch(name: &str) -> (tempfile::TempDir, PathBuf) {
+        let d = tempfile::Builder::new()
+            .prefix(&format!("drape-repro-{name}-"))
+            .tempdir()
+            .unwrap();
+        let path = d.path().join("stages.json");
+        (d, path)
     }
 
     #[test]
     fn the_clock_counts_overlapping_stages_once_for_the_machine() {
-        let path = scratch("clock");
+        let (_dir, path) = scratch("clock");
         let mut c = Clock::new(Ledger::default(), &path);
         let pause = || std::thread::sleep(std::time::Duration::from_millis(60));
         c.start("a").unwrap();
@@ -1399,7 +1403,7 @@ samples = 1
 
     #[test]
     fn older_ledgers_and_heartbeats_are_read() {
-        let path = scratch("old");
+        let (_dir, path) = scratch("old");
         // A ledger from before machine time was kept: its stages ran one at a time.
         std::fs::write(
             &path,
@@ -1596,7 +1600,8 @@ samples = 1
         .unwrap();
         plan.validate().unwrap();
         assert_eq!(plan.docs.as_deref(), Some(Path::new("elsewhere")));
-        let out = scratch("partial").parent().unwrap().to_path_buf();
+        let (dir, _) = scratch("partial");
+        let out = dir.path().to_path_buf();
         let docs = out.join("docs");
         write_report(
             &plan,
