@@ -251,8 +251,8 @@ mod tests {
     /// and the header stay; a log with nothing to drop is left as it is.
     #[test]
     fn append_after_drops_the_rows_past_the_checkpoint() {
-        let dir = std::env::temp_dir().join(format!("drape-append-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
         let p = dir.join("log.csv");
         std::fs::write(&p, "epoch,x\n0,a\n1,b\n2,c\n").unwrap();
         let epoch = |l: &str| l.split(',').next().unwrap().parse::<u32>().unwrap();
@@ -272,6 +272,5 @@ mod tests {
         let q = dir.join("new.csv");
         drop(append_after(&q, "epoch,x", |_| false).unwrap());
         assert_eq!(std::fs::read_to_string(&q).unwrap(), "epoch,x\n");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

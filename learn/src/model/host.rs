@@ -19,8 +19,8 @@ use rayon::prelude::*;
 /// Rows per rayon task: the loops below are a few hundred operations per row.
 const ROWS_PER_TASK: usize = 256;
 
-/// Whether the forward pass computes `x`'s reductions and aggregation here: on the CPU
-/// backends, without autodiff.
+/// Whether the forward pass computes `x`'s reductions here: on the CPU backends, without
+/// autodiff.
 pub fn host<const D: usize>(x: &Tensor<D>) -> bool {
     cpu_build() && !x.is_autodiff()
 }

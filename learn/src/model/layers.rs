@@ -40,8 +40,9 @@ pub fn normed<const D: usize>(norm: Option<&LayerNorm>, x: Tensor<D>) -> Tensor<
 /// `mask_where`, whose backward fills two zero tensors and runs two more `mask_where`s, all
 /// scalar loops on burn-flex. Written as `slope x + (1 - slope) relu(x)` it is four vectorised
 /// passes forward and backward (relu has its own backward op): the same values to a rounding
-/// of the positive side, and a faster training step (docs/bench.md, "The leaky ReLU").
-/// Without autodiff burn's own `leaky_relu` is one pass and stays.
+/// of the positive side, the same gradient except at exactly 0 (the slope here, 1 in burn's),
+/// and a faster training step (docs/bench.md, "The leaky ReLU"). Without autodiff burn's
+/// own `leaky_relu` is one pass and stays.
 pub fn leaky<const D: usize>(x: Tensor<D>, slope: f64) -> Tensor<D> {
     if x.is_autodiff() {
         x.clone() * slope + relu(x) * (1.0 - slope)
@@ -244,16 +245,18 @@ impl FeaStConv {
     /// # Shapes
     /// `x`: `[B, N, input]`, `rows`: [`Graph::rows`] for this B -> `[B, N, output]`.
     ///
-    /// The head-weighted neighbourhood sums are one operation with its own backward on the
-    /// CPU ([`feast::aggregate`]: loops over each vertex's neighbours in place), and burn's
-    /// tensor operations on a GPU ([`FeaStConv::aggregate_tensors`]); then one linear map from
-    /// `M * input` to `output`.
+    /// The head-weighted neighbourhood sums are one operation with its own backward in
+    /// builds with only CPU backends ([`feast::aggregate`]: loops over each vertex's
+    /// neighbours in place), and burn's tensor operations in builds with a GPU backend
+    /// compiled in, on any device ([`FeaStConv::aggregate_tensors`]); then one linear map
+    /// from `M * input` to `output`.
     pub fn forward(&self, x: Tensor<3>, g: &Graph, rows: &Tensor<1, Int>) -> Tensor<3> {
         self.forward_with(x, g, rows, host::cpu_build())
     }
 
-    /// [`FeaStConv::forward`] with the fused aggregation (`fused`, CPU backends only) or
-    /// burn's tensor operations, whichever the build: for tests and benchmarks.
+    /// [`FeaStConv::forward`] with the fused aggregation (`fused`; only for tensors on a CPU
+    /// backend, burn-flex or burn-ndarray, else it panics) or with burn's tensor operations
+    /// (not `fused`, any backend), regardless of the build: for tests and benchmarks.
     pub fn forward_with(
         &self,
         x: Tensor<3>,
