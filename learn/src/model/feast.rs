@@ -47,32 +47,18 @@ pub struct Slots {
     pub used: Vec<bool>,
 }
 
-/// The sizes of one aggregation: batch B, vertices N, features C, heads M.
-#[derive(Debug, Clone, Copy)]
-struct Dims {
-    b: usize,
-    n: usize,
-    c: usize,
-    m: usize,
-}
-
-impl Dims {
-    fn of(x: &[usize], ux: &[usize], slots: &Slots) -> Self {
-        assert_eq!(x.len(), 3, "x is [B, N, C]");
-        assert_eq!(ux.len(), 3, "ux is [B, N, M]");
-        assert_eq!(
-            (x[0], x[1]),
-            (ux[0], ux[1]),
-            "x and ux disagree on batch or vertices"
-        );
-        assert_eq!(x[1], slots.vertices, "x's vertices are not the mesh's");
-        Self {
-            b: x[0],
-            n: x[1],
-            c: x[2],
-            m: ux[2],
-        }
-    }
+/// The sizes of one aggregation, `[B, N, C, M]` (batch, vertices, features, heads), from
+/// `x`'s `[B, N, C]` and `ux`'s `[B, N, M]`, checked against each other and the mesh.
+fn sizes(x: &[usize], ux: &[usize], slots: &Slots) -> [usize; 4] {
+    assert_eq!(x.len(), 3, "x is [B, N, C]");
+    assert_eq!(ux.len(), 3, "ux is [B, N, M]");
+    assert_eq!(
+        (x[0], x[1]),
+        (ux[0], ux[1]),
+        "x and ux disagree on batch or vertices"
+    );
+    assert_eq!(x[1], slots.vertices, "x's vertices are not the mesh's");
+    [x[0], x[1], x[2], ux[2]]
 }
 
 /// q over the heads for one slot: softmax of `uj - ui + c`, into `q`.
@@ -222,8 +208,8 @@ fn host_floats<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
         .expect("f32 data")
 }
 
-fn to_backend<B: Backend>(v: Vec<f32>, shape: Vec<usize>, like: &FloatTensor<B>) -> FloatTensor<B> {
-    B::float_from_data(TensorData::new(v, shape), &like.device())
+fn to_backend<B: Backend>(v: Vec<f32>, shape: Vec<usize>, device: &B::Device) -> FloatTensor<B> {
+    B::float_from_data(TensorData::new(v, shape), device)
 }
 
 /// FeaStNet's aggregation as a backend operation (see the module's documentation).
@@ -241,16 +227,16 @@ pub trait FeastOps: Backend {
         c: FloatTensor<Self>,
         slots: Arc<Slots>,
     ) -> FloatTensor<Self> {
-        let d = Dims::of(&x.shape(), &ux.shape(), &slots);
-        let like = x.clone();
+        let [b, n, ch, m] = sizes(&x.shape(), &ux.shape(), &slots);
+        let device = x.device();
         let z = feast_forward(
             &host_floats::<Self>(x),
             &host_floats::<Self>(ux),
             &host_floats::<Self>(c),
             &slots,
-            [d.b, d.n, d.c, d.m],
+            [b, n, ch, m],
         );
-        to_backend::<Self>(z, vec![d.b, d.n, d.m * d.c], &like)
+        to_backend::<Self>(z, vec![b, n, m * ch], &device)
     }
 
     /// [`feast_backward`] on the backend's tensors: the gradients of `x`, `ux` and `c`.
@@ -261,20 +247,20 @@ pub trait FeastOps: Backend {
         gz: FloatTensor<Self>,
         slots: Arc<Slots>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
-        let d = Dims::of(&x.shape(), &ux.shape(), &slots);
-        let like = x.clone();
+        let [b, n, ch, m] = sizes(&x.shape(), &ux.shape(), &slots);
+        let device = x.device();
         let (gx, gux, gc) = feast_backward(
             &host_floats::<Self>(x),
             &host_floats::<Self>(ux),
             &host_floats::<Self>(c),
             &host_floats::<Self>(gz),
             &slots,
-            [d.b, d.n, d.c, d.m],
+            [b, n, ch, m],
         );
         (
-            to_backend::<Self>(gx, vec![d.b, d.n, d.c], &like),
-            to_backend::<Self>(gux, vec![d.b, d.n, d.m], &like),
-            to_backend::<Self>(gc, vec![d.m], &like),
+            to_backend::<Self>(gx, vec![b, n, ch], &device),
+            to_backend::<Self>(gux, vec![b, n, m], &device),
+            to_backend::<Self>(gc, vec![m], &device),
         )
     }
 }
