@@ -9,7 +9,7 @@ use burn::module::Module;
 use burn::tensor::{Device, Distribution, Tensor};
 use learn::config::ModelConfig;
 use learn::loss::{self, LossTopology};
-use learn::model::{FeaStConv, Graph, Mlp};
+use learn::model::{Aggregation, FeaStConv, Graph, Mlp};
 use learn::topology::Topology;
 
 fn time(name: &str, reps: usize, mut f: impl FnMut()) {
@@ -46,20 +46,19 @@ fn main() {
     let conv = FeaStConv::new(w + 3, w, c.conv_heads, false, &device);
     let x = Tensor::<3>::random([b, n, w + 3], Distribution::Default, &device).require_grad();
     let rows = g.rows(b, &device);
+    let fused = Aggregation::Fused;
+    let tensors = Aggregation::Tensors(rows.clone());
     time("FeaStConv forward", 3, || {
-        let _ = conv.forward(x.clone(), &g, &rows);
+        let _ = conv.forward(x.clone(), &g, &fused);
     });
     time("FeaStConv forward+backward", 3, || {
-        let _ = conv.forward(x.clone(), &g, &rows).sum().backward();
+        let _ = conv.forward(x.clone(), &g, &fused).sum().backward();
     });
     time("FeaStConv forward (burn's tensor ops)", 3, || {
-        let _ = conv.forward_with(x.clone(), &g, &rows, false);
+        let _ = conv.forward(x.clone(), &g, &tensors);
     });
     time("FeaStConv fwd+bwd (burn's tensor ops)", 3, || {
-        let _ = conv
-            .forward_with(x.clone(), &g, &rows, false)
-            .sum()
-            .backward();
+        let _ = conv.forward(x.clone(), &g, &tensors).sum().backward();
     });
     let h = Tensor::<3>::random([b, n, w], Distribution::Default, &device).require_grad();
     time("gather [B*N*K, C] forward+backward", 3, || {

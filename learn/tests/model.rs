@@ -91,7 +91,7 @@ fn feastconv_matches_its_formula() {
     let conv = FeaStConv::new(cin, cout, m, false, &device);
     let x = Tensor::<3>::random([1, topo.vertices, cin], Distribution::Default, &device);
     let y = conv
-        .forward(x.clone(), &g, &g.rows(1, &device))
+        .forward(x.clone(), &g, &g.aggregation(1, &device))
         .into_data()
         .try_to_vec::<f32>()
         .unwrap();
@@ -499,16 +499,16 @@ fn a_block_that_starts_at_zero_adds_nothing_until_it_learns() {
     let (_, topo) = grid(4, 3);
     let g = Graph::new(&topo, &device);
     let x = Tensor::<3>::random([2, topo.vertices, 5], Distribution::Default, &device);
-    let rows = g.rows(2, &device);
+    let how = g.aggregation(2, &device);
     let zero = FeaStConv::new(5, 4, 3, true, &device)
-        .forward(x.clone(), &g, &rows)
+        .forward(x.clone(), &g, &how)
         .into_data()
         .try_to_vec::<f32>()
         .unwrap();
     assert!(zero.iter().all(|&v| v == 0.0), "{zero:?}");
     // He-initialised, the same block's output is not zero.
     let he = FeaStConv::new(5, 4, 3, false, &device)
-        .forward(x, &g, &rows)
+        .forward(x, &g, &how)
         .into_data()
         .try_to_vec::<f32>()
         .unwrap();

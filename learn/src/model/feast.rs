@@ -331,7 +331,7 @@ mod tests {
     use burn::module::{Module, Param};
     use burn::tensor::{Device, Distribution, Tensor};
 
-    use crate::model::{FeaStConv, Graph};
+    use crate::model::{Aggregation, FeaStConv, Graph};
     use crate::topology::Topology;
 
     fn floats<const D: usize>(x: Tensor<D>) -> Vec<f32> {
@@ -384,12 +384,12 @@ mod tests {
         conv.c = Param::from_tensor(Tensor::from_inner(c_big).require_grad());
         let n = topo.vertices;
         let g = Graph::new(&topo, &ad);
-        let rows = g.rows(b, &ad);
+        let rows = Aggregation::Tensors(g.rows(b, &ad));
         let x = Tensor::<3>::random([b, n, c], Distribution::Normal(0.0, 1.0), &ad).require_grad();
         let w = Tensor::<3>::random([b, n, o], Distribution::Normal(0.0, 1.0), &ad);
 
-        let fused = conv.forward_with(x.clone(), &g, &rows, true);
-        let tensors = conv.forward_with(x.clone(), &g, &rows, false);
+        let fused = conv.forward(x.clone(), &g, &Aggregation::Fused);
+        let tensors = conv.forward(x.clone(), &g, &rows);
         assert_eq!(fused.dims(), [b, n, o]);
         let err = rel(
             floats(fused.clone().inner()),
@@ -439,13 +439,13 @@ mod tests {
         let n = topo.vertices;
         let x = Tensor::<3>::random([b, n, c], Distribution::Normal(0.0, 1.0), &ad);
         let g_ad = Graph::new(&topo, &ad);
-        let rows = g_ad.rows(b, &ad);
-        let want = conv.forward_with(x.clone(), &g_ad, &rows, false);
+        let rows = Aggregation::Tensors(g_ad.rows(b, &ad));
+        let want = conv.forward(x.clone(), &g_ad, &rows);
 
         let plain = ad.clone().inner();
         let (conv, x) = (conv.valid(), x.inner());
         let g = Graph::new(&topo, &plain);
-        let got = conv.forward(x, &g, &g.rows(b, &plain));
+        let got = conv.forward(x, &g, &Aggregation::Fused);
         let err = rel(floats(got), floats(want.inner()));
         assert!(err < 1e-5, "largest difference {err}");
     }

@@ -176,8 +176,19 @@ impl Graph {
         }
     }
 
+    /// How this build's convolutions aggregate a batch of `b` on `device`: fused in builds
+    /// with only CPU backends (no index tensor), else burn's tensor operations with
+    /// [`Graph::rows`]. Made once per forward pass and shared by all convolutions.
+    pub fn aggregation(&self, b: usize, device: &Device) -> Aggregation {
+        if host::cpu_build() {
+            Aggregation::Fused
+        } else {
+            Aggregation::Tensors(self.rows(b, device))
+        }
+    }
+
     /// Neighbour rows of the flattened `[B * N, C]` features for batch size `b`,
-    /// `[B * N * K]`. Made once per forward pass and shared by all convolutions.
+    /// `[B * N * K]`: the index of [`Aggregation::Tensors`].
     pub fn rows(&self, b: usize, device: &Device) -> Tensor<1, Int> {
         let n = self.vertices as i64;
         let idx: Vec<i64> = (0..b as i64)
@@ -191,6 +202,17 @@ impl Graph {
         let len = idx.len();
         Tensor::from_data(TensorData::new(idx, [len]), device)
     }
+}
+
+/// How [`FeaStConv::forward`] computes its head-weighted neighbourhood sums.
+#[derive(Debug, Clone)]
+pub enum Aggregation {
+    /// One operation with its own backward, loops over each vertex's neighbours in place
+    /// ([`feast::aggregate`]); only for tensors on a CPU backend (burn-flex or
+    /// burn-ndarray), else it panics.
+    Fused,
+    /// burn's tensor operations on any backend, gathering by [`Graph::rows`] for the batch.
+    Tensors(Tensor<1, Int>),
 }
 
 /// FeaStNet graph convolution (Verma et al. 2018), the translation-invariant variant:
@@ -243,32 +265,17 @@ impl FeaStConv {
     }
 
     /// # Shapes
-    /// `x`: `[B, N, input]`, `rows`: [`Graph::rows`] for this B -> `[B, N, output]`.
+    /// `x`: `[B, N, input]` -> `[B, N, output]`.
     ///
-    /// The head-weighted neighbourhood sums are one operation with its own backward in
-    /// builds with only CPU backends ([`feast::aggregate`]: loops over each vertex's
-    /// neighbours in place), and burn's tensor operations in builds with a GPU backend
-    /// compiled in, on any device ([`FeaStConv::aggregate_tensors`]); then one linear map
-    /// from `M * input` to `output`.
-    pub fn forward(&self, x: Tensor<3>, g: &Graph, rows: &Tensor<1, Int>) -> Tensor<3> {
-        self.forward_with(x, g, rows, host::cpu_build())
-    }
-
-    /// [`FeaStConv::forward`] with the fused aggregation (`fused`; only for tensors on a CPU
-    /// backend, burn-flex or burn-ndarray, else it panics) or with burn's tensor operations
-    /// (not `fused`, any backend), regardless of the build: for tests and benchmarks.
-    pub fn forward_with(
-        &self,
-        x: Tensor<3>,
-        g: &Graph,
-        rows: &Tensor<1, Int>,
-        fused: bool,
-    ) -> Tensor<3> {
+    /// The head-weighted neighbourhood sums as `how` says ([`Graph::aggregation`] picks
+    /// the build's: fused where only CPU backends are compiled in, burn's tensor
+    /// operations where a GPU backend is; tests and benchmarks pick either), then one
+    /// linear map from `M * input` to `output`.
+    pub fn forward(&self, x: Tensor<3>, g: &Graph, how: &Aggregation) -> Tensor<3> {
         let ux = self.u.forward(x.clone()); // [B, N, M]
-        let z = if fused {
-            feast::aggregate(x, ux, self.c.val(), &g.host_slots)
-        } else {
-            self.aggregate_tensors(x, ux, g, rows)
+        let z = match how {
+            Aggregation::Fused => feast::aggregate(x, ux, self.c.val(), &g.host_slots),
+            Aggregation::Tensors(rows) => self.aggregate_tensors(x, ux, g, rows),
         }; // [B, N, M * C]
         let y = self.lin.forward(z); // [B, N, O]
         y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output])

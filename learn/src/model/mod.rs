@@ -11,7 +11,7 @@ pub mod feast;
 pub mod host;
 mod layers;
 
-pub use layers::{FeaStConv, Graph, Mlp, SplitLinear};
+pub use layers::{Aggregation, FeaStConv, Graph, Mlp, SplitLinear};
 
 use layers::{leaky, maybe_norm, normed};
 
@@ -160,9 +160,9 @@ impl ConvStack {
     /// # Shapes
     /// `h`: `[B, N, C]`, `xyz`: `[B, N, 3]` -> `[B, N, C]`.
     fn forward(&self, mut h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
-        let rows = g.rows(h.dims()[0], &h.device());
+        let how = g.aggregation(h.dims()[0], &h.device());
         for (i, conv) in self.blocks.iter().enumerate() {
-            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &rows); // [B, N, C]
+            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &how); // [B, N, C]
             h = h + leaky(normed(self.norms.get(i), y), self.slope);
         }
         h
