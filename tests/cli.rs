@@ -899,3 +899,97 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     let d = jeans["top_drop_cm"].as_f64().unwrap();
     assert!((0.0..25.0).contains(&d), "{jeans}");
 }
+
+/// An evaluation's metrics with per-sample rows: `(id, network Edist, nearest-neighbour
+/// Edist)`.
+fn metrics_json(rows: &[(i64, f64, f64)]) -> String {
+    let samples: Vec<String> = rows
+        .iter()
+        .map(|(id, net, nn)| {
+            format!(
+                r#"{{"id": {id}, "methods": {{"network": {{"edist_cm": {net}, "enorm_deg": 10.0}}, "nearest-neighbour": {{"edist_cm": {nn}}}}}}}"#
+            )
+        })
+        .collect();
+    format!("{{\"samples\": [{}]}}", samples.join(", "))
+}
+
+#[test]
+fn compare_pairs_two_evaluations_by_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    // A as a report folder, B as a metrics file; B lacks sample 4, A lacks sample 9.
+    let report = dir.path().join("report");
+    std::fs::create_dir(&report).unwrap();
+    std::fs::write(
+        report.join("metrics.json"),
+        metrics_json(&[(1, 2.0, 3.0), (2, 1.0, 2.5), (3, 1.5, 2.0), (4, 9.0, 9.0)]),
+    )
+    .unwrap();
+    let b = dir.path().join("b.json");
+    std::fs::write(
+        &b,
+        metrics_json(&[(3, 1.3, 0.0), (2, 1.2, 0.0), (1, 2.1, 0.0), (9, 0.0, 0.0)]),
+    )
+    .unwrap();
+    let json = dir.path().join("cmp.json");
+    let (r, bs, js) = (
+        report.to_str().unwrap(),
+        b.to_str().unwrap(),
+        json.to_str().unwrap(),
+    );
+    let o = drape(&["compare", r, bs, "--json", js]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    // Differences -0.1, -0.2, +0.2: mean -0.0333, sample deviation 0.2082, s.e. 0.1202.
+    assert!(
+        out.contains("3 samples in both (1 only in A, 1 only in B, left out)"),
+        "{out}"
+    );
+    assert!(
+        out.contains("| Edist (cm) | 3 | 1.500 | 1.533 | -0.03333 | 0.1202 | -0.3 | 2 | 1 |"),
+        "{out}"
+    );
+    // Enorm is equal on every sample: a zero difference, no ratio, no side lower.
+    assert!(
+        out.contains("| Enorm (degrees) | 3 | 10.00 | 10.00 | +0.0000 | 0.0000 | - | 0 | 0 |"),
+        "{out}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["shared"], 3);
+    assert!((v["figures"][0]["mean_difference"].as_f64().unwrap() + 0.1 / 3.0).abs() < 1e-9);
+
+    // The network against a baseline of the same report.
+    let o = drape(&["compare", r, r, "--method-b", "nearest-neighbour"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("(nearest-neighbour)")
+            && out.contains("| Edist (cm) | 4 | 3.375 | 4.125 | -0.7500 |"),
+        "{out}"
+    );
+
+    // Bad input: clear errors, non-zero status.
+    let err = |args: &[&str], expect: &str| {
+        let o = drape(args);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(stderr(&o).contains(expect), "{args:?}: {}", stderr(&o));
+    };
+    let missing = dir.path().join("missing");
+    err(
+        &["compare", r, missing.to_str().unwrap()],
+        "no such report folder or file",
+    );
+    err(
+        &["compare", dir.path().to_str().unwrap(), r],
+        "holds no metrics.json",
+    );
+    err(
+        &["compare", r, bs, "--method", "kernel"],
+        "has no per-sample figures of method `kernel`; it has: nearest-neighbour, network",
+    );
+    std::fs::write(&b, metrics_json(&[(7, 1.0, 1.0), (8, 1.0, 1.0)])).unwrap();
+    err(&["compare", r, bs], "share 0 sample id(s)");
+    std::fs::write(&b, "{\"summaries\": {}}").unwrap();
+    err(&["compare", r, bs], "has no per-sample rows");
+}

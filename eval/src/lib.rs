@@ -8,6 +8,7 @@
 //! - [`evaluate`]: a trained network and the DQS, mean-residual, nearest-neighbour and linear
 //!   baselines measured on a dataset split (`drape eval`); [`report`] writes the report
 //!   folder; [`exr`] the float error images; [`linear`] the linear (ridge) baseline.
+//! - [`compare`]: two evaluations of the same drapes paired by sample (`drape compare`).
 //! - [`speed`]: the speed-up of a network over the simulator (`drape bench speedup`).
 //! - [`sensitivity`]: how far drapes move under a micrometre disturbance of the
 //!   simulation (`drape data sensitivity`), the part of a target no input determines.
@@ -17,6 +18,7 @@
 //! - [`plot`]: line charts (the average-precision curves) and colour bars as images.
 #![warn(missing_docs)]
 
+pub mod compare;
 pub mod curve;
 pub mod evaluate;
 pub mod exr;

@@ -594,17 +594,12 @@ impl Results {
             )
         };
         let (pa, pb) = (per_sample(a)?, per_sample(b)?);
-        let d: Vec<f64> = pa
+        let pairs: Vec<(f64, f64)> = pa
             .iter()
-            .filter_map(|(id, x)| pb.get(id).map(|y| x - y))
+            .filter_map(|(id, x)| pb.get(id).map(|y| (*x, *y)))
             .collect();
-        let n = d.len();
-        if n < 2 {
-            return None;
-        }
-        // The standard error from the population deviation: s / sqrt(n - 1).
-        let (mean, std) = crate::metrics::mean_std(&d);
-        Some((mean, std / ((n - 1) as f64).sqrt(), n))
+        let p = crate::compare::paired("edist_cm", &pairs)?;
+        Some((p.mean_difference, p.standard_error, p.samples))
     }
 }
 

@@ -81,3 +81,47 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+/// `drape compare`.
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// Evaluation A: a report folder of `drape eval`, or a metrics JSON with per-sample rows
+    /// (a report's metrics.json, a run record in docs/eval/).
+    #[arg(value_name = "A")]
+    a: PathBuf,
+    /// Evaluation B, the same kinds; may be A itself to compare two of its methods.
+    #[arg(value_name = "B")]
+    b: PathBuf,
+    /// A's method: network, dqs, mean-residual, nearest-neighbour, kernel, linear or
+    /// simulator.
+    #[arg(long, default_value = "network", value_name = "METHOD")]
+    method: String,
+    /// B's method (default: A's).
+    #[arg(long, value_name = "METHOD")]
+    method_b: Option<String>,
+    /// Also write the comparison as JSON to this file.
+    #[arg(long, value_name = "FILE.json")]
+    json: Option<PathBuf>,
+}
+
+/// Runs `drape compare`.
+pub fn compare(args: CompareArgs) -> anyhow::Result<()> {
+    let mb = args.method_b.as_deref().unwrap_or(&args.method);
+    let (a, b) = (
+        eval::compare::load(&args.a, &args.method)?,
+        eval::compare::load(&args.b, mb)?,
+    );
+    let c = eval::compare::compare(
+        &a,
+        &b,
+        &format!("{} ({})", args.a.display(), args.method),
+        &format!("{} ({mb})", args.b.display()),
+    )?;
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&c)? + "\n";
+        std::fs::write(path, text)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    }
+    print!("{}", c.table());
+    Ok(())
+}

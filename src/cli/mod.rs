@@ -64,6 +64,10 @@ pub enum Command {
     /// baselines on a dataset split: Edist, Enorm, curvature, physics, curves and renders
     /// in a report folder.
     Eval(evaluate::EvalArgs),
+    /// Compare two evaluations of the same drapes sample by sample (two networks, or a
+    /// network and a baseline): per figure the mean difference, its standard error, and
+    /// on how many drapes each is lower.
+    Compare(evaluate::CompareArgs),
     /// Reproduce the paper's tables on our data: generate the plan's datasets, train its
     /// networks and fine-tunes, evaluate them, time the speed-up, write
     /// docs/reproduction.md and .json. Resumable.
@@ -98,6 +102,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(args) => learn::run(args),
         Command::Predict(args) => learn::predict(*args, &ctx),
         Command::Eval(args) => evaluate::run(args),
+        Command::Compare(args) => evaluate::compare(args),
         Command::Quickstart(args) => quickstart::run(args, &ctx),
         Command::Reproduce(args) => reproduce::run(args, &ctx),
     }
