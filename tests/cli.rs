@@ -907,7 +907,7 @@ fn metrics_json(rows: &[(i64, f64, f64)]) -> String {
         .iter()
         .map(|(id, net, nn)| {
             format!(
-                r#"{{"id": {id}, "methods": {{"network": {{"edist_cm": {net}, "enorm_deg": 10.0}}, "nearest-neighbour": {{"edist_cm": {nn}}}}}}}"#
+                r#"{{"id": {id}, "methods": {{"network": {{"edist_cm": {net}, "enorm_deg": 10.0}}, "nearest-neighbour": {{"edist_cm": {nn}}}}}, "simulator": {{"edist_cm": 0.0, "interpenetration": 0.0}}}}"#
             )
         })
         .collect();
@@ -969,6 +969,15 @@ fn compare_pairs_two_evaluations_by_sample() {
         "{out}"
     );
 
+    // The simulator's own figures are a method too (Edist 0 against itself).
+    let o = drape(&["compare", r, r, "--method-b", "simulator"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("| Edist (cm) | 4 | 3.375 | 0.0000 | +3.375 |"),
+        "{out}"
+    );
+
     // Bad input: clear errors, non-zero status.
     let err = |args: &[&str], expect: &str| {
         let o = drape(args);
@@ -986,10 +995,12 @@ fn compare_pairs_two_evaluations_by_sample() {
     );
     err(
         &["compare", r, bs, "--method", "kernel"],
-        "has no per-sample figures of method `kernel`; it has: nearest-neighbour, network",
+        "has no per-sample figures of method `kernel`; it has: nearest-neighbour, network, simulator",
     );
     std::fs::write(&b, metrics_json(&[(7, 1.0, 1.0), (8, 1.0, 1.0)])).unwrap();
     err(&["compare", r, bs], "share 0 sample id(s)");
     std::fs::write(&b, "{\"summaries\": {}}").unwrap();
     err(&["compare", r, bs], "has no per-sample rows");
+    std::fs::write(&b, metrics_json(&[(1, 1.0, 1.0), (1, 2.0, 1.0)])).unwrap();
+    err(&["compare", r, bs], "has sample id 1 twice");
 }

@@ -52,19 +52,19 @@ fn metrics_file(path: &Path) -> Result<PathBuf, EvalError> {
 
 /// Reads `method`'s per-sample figures from an evaluation: a report folder of `drape eval`
 /// (its `metrics.json`), or a JSON file with the same `samples` rows (a `metrics.json`,
-/// the reproduction record's copies, the run records in `docs/eval/`). Rows without the
-/// method are skipped; figures that are not finite numbers are left out of the row.
+/// the run records in `docs/eval/` that kept per-drape figures). `simulator` reads the
+/// simulator's own figures (energies, interpenetration). Rows without the method are
+/// skipped; figures that are not finite numbers (a diverged prediction's) are left out
+/// are kept as NaN; [`compare`] counts and leaves them out.
 pub fn load(path: &Path, method: &str) -> Result<PerSample, EvalError> {
     let file = metrics_file(path)?;
-    let bytes = std::fs::read(&file).map_err(|source| EvalError::Io {
-        path: file.clone(),
-        source,
-    })?;
+    let bytes = std::fs::read(&file)
+        .map_err(|e| EvalError::Invalid(format!("cannot read {}: {e}", file.display())))?;
     let v: serde_json::Value = serde_json::from_slice(&bytes)
         .map_err(|e| EvalError::Invalid(format!("{}: not JSON: {e}", file.display())))?;
     let rows = v["samples"].as_array().ok_or_else(|| {
         EvalError::Invalid(format!(
-            "{} has no per-sample rows (`samples`): it is not an evaluation's metrics",
+            "{} has no per-sample rows (`samples`): only reports of `drape eval` and records that kept per-drape figures can be paired",
             file.display()
         ))
     })?;
@@ -77,15 +77,29 @@ pub fn load(path: &Path, method: &str) -> Result<PerSample, EvalError> {
         if let Some(m) = row["methods"].as_object() {
             methods.extend(m.keys().cloned());
         }
-        let Some(fig) = row["methods"][method].as_object() else {
+        if row["simulator"].is_object() {
+            methods.insert("simulator".to_string());
+        }
+        let fig = if method == "simulator" {
+            row["simulator"].as_object()
+        } else {
+            row["methods"][method].as_object()
+        };
+        let Some(fig) = fig else {
             continue;
         };
+        // Numbers, and the nulls a non-finite figure is written as, as NaN.
         let values = fig
             .iter()
-            .filter_map(|(k, x)| Some((k.clone(), x.as_f64()?)))
-            .filter(|(_, x)| x.is_finite())
+            .filter(|(_, x)| x.is_number() || x.is_null())
+            .map(|(k, x)| (k.clone(), x.as_f64().unwrap_or(f64::NAN)))
             .collect();
-        out.insert(id, values);
+        if out.insert(id, values).is_some() {
+            return Err(EvalError::Invalid(format!(
+                "{} has sample id {id} twice",
+                file.display()
+            )));
+        }
     }
     if out.is_empty() {
         let have: Vec<_> = methods.into_iter().collect();
@@ -121,9 +135,12 @@ pub struct Paired {
     pub a_lower: usize,
     /// Samples on which B is lower.
     pub b_lower: usize,
+    /// Shared samples left out because A's or B's value is not finite (a diverged
+    /// prediction).
+    pub non_finite: usize,
 }
 
-/// The paired differences of `(a, b)` value pairs; None for fewer than two pairs.
+/// The paired differences of `(a, b)` value pairs (finite); None for fewer than two pairs.
 pub fn paired(figure: &str, pairs: &[(f64, f64)]) -> Option<Paired> {
     let n = pairs.len();
     if n < 2 {
@@ -142,6 +159,7 @@ pub fn paired(figure: &str, pairs: &[(f64, f64)]) -> Option<Paired> {
         standard_error: std / ((n - 1) as f64).sqrt(),
         a_lower: pairs.iter().filter(|(a, b)| a < b).count(),
         b_lower: pairs.iter().filter(|(a, b)| b < a).count(),
+        non_finite: 0,
     })
 }
 
@@ -179,13 +197,25 @@ pub fn compare(
     let figures = FIGURES
         .iter()
         .filter_map(|(key, _, _)| {
-            let pairs: Vec<(f64, f64)> = shared
+            let both: Vec<(f64, f64)> = shared
                 .iter()
                 .filter_map(|id| Some((*a[id].get(*key)?, *b[id].get(*key)?)))
                 .collect();
-            paired(key, &pairs)
+            let pairs: Vec<(f64, f64)> = both
+                .iter()
+                .copied()
+                .filter(|(x, y)| x.is_finite() && y.is_finite())
+                .collect();
+            let mut p = paired(key, &pairs)?;
+            p.non_finite = both.len() - pairs.len();
+            Some(p)
         })
-        .collect();
+        .collect::<Vec<_>>();
+    if figures.is_empty() {
+        return Err(EvalError::Invalid(format!(
+            "{a_name} and {b_name} have no figure with finite values on two shared samples"
+        )));
+    }
     Ok(Comparison {
         a: a_name.to_string(),
         b: b_name.to_string(),
@@ -222,10 +252,14 @@ impl Comparison {
             } else {
                 "-".to_string()
             };
+            let samples = if p.non_finite > 0 {
+                format!("{} ({} not finite, left out)", p.samples, p.non_finite)
+            } else {
+                p.samples.to_string()
+            };
             writeln!(
                 s,
-                "| {label} | {} | {} | {} | {} | {} | {t} | {} | {} |",
-                p.samples,
+                "| {label} | {samples} | {} | {} | {} | {} | {t} | {} | {} |",
                 num(p.mean_a * scale, false),
                 num(p.mean_b * scale, false),
                 num(p.mean_difference * scale, true),
@@ -242,11 +276,22 @@ impl Comparison {
 /// Four significant digits, fixed-point where that reads well.
 fn num(x: f64, sign: bool) -> String {
     let a = x.abs();
-    let digits = if a == 0.0 || !a.is_finite() {
+    let mut digits = if a == 0.0 || !a.is_finite() {
         4
     } else {
         (3 - a.log10().floor() as i32).clamp(0, 8) as usize
     };
+    // 9.9996 rounds to 10.000 at four decimals: one digit fewer.
+    let significant = |d: usize| {
+        format!("{a:.d$}")
+            .chars()
+            .filter(char::is_ascii_digit)
+            .skip_while(|&c| c == '0')
+            .count()
+    };
+    if digits > 0 && significant(digits) > 4 {
+        digits -= 1;
+    }
     if a != 0.0 && !(1e-4..1e6).contains(&a) {
         return if sign {
             format!("{x:+.3e}")
@@ -321,6 +366,23 @@ mod tests {
         );
     }
 
+    /// A diverged prediction (NaN) is left out of its figure and counted.
+    #[test]
+    fn non_finite_values_are_counted_and_left_out() {
+        let a = per_sample(&[(1, f64::NAN, 1.0), (2, 1.0, 1.0), (3, 2.0, 2.0)]);
+        let b = per_sample(&[(1, 1.0, 1.0), (2, 1.5, 1.0), (3, 1.5, 1.0)]);
+        let c = compare(&a, &b, "a", "b").unwrap();
+        assert_eq!((c.figures[0].samples, c.figures[0].non_finite), (2, 1));
+        assert!(c.figures[0].mean_difference.abs() < 1e-12);
+        assert_eq!((c.figures[1].samples, c.figures[1].non_finite), (3, 0));
+        assert!(
+            c.table()
+                .contains("| Edist (cm) | 2 (1 not finite, left out) | 1.500 | 1.500 | +0.0000 |"),
+            "{}",
+            c.table()
+        );
+    }
+
     #[test]
     fn evaluations_without_shared_samples_are_an_error() {
         let a = per_sample(&[(1, 1.0, 1.0), (2, 1.0, 1.0)]);
@@ -336,5 +398,7 @@ mod tests {
         assert_eq!(num(15.596, false), "15.60");
         assert_eq!(num(1548.47, false), "1548");
         assert_eq!(num(2.5e-7, false), "2.500e-7");
+        assert_eq!(num(9.9996, false), "10.00");
+        assert_eq!(num(0.099996, true), "+0.1000");
     }
 }

@@ -46,7 +46,7 @@ fn main() {
     let conv = FeaStConv::new(w + 3, w, c.conv_heads, false, &device);
     let x = Tensor::<3>::random([b, n, w + 3], Distribution::Default, &device).require_grad();
     let rows = g.rows(b, &device);
-    let fused = Aggregation::Fused;
+    let fused = g.aggregation(b, &device); // the build's: fused on the CPU backends
     let tensors = Aggregation::Tensors(rows.clone());
     time("FeaStConv forward", 3, || {
         let _ = conv.forward(x.clone(), &g, &fused);
