@@ -273,37 +273,37 @@ impl Comparison {
     }
 }
 
-/// Four significant digits, fixed-point where that reads well.
+/// Four significant digits, fixed-point where that reads well; `sign`: a `+` before
+/// positive values.
 fn num(x: f64, sign: bool) -> String {
     let a = x.abs();
-    let mut digits = if a == 0.0 || !a.is_finite() {
-        4
+    let body = if a != 0.0 && !(1e-4..1e6).contains(&a) {
+        format!("{a:.3e}")
     } else {
-        (3 - a.log10().floor() as i32).clamp(0, 8) as usize
-    };
-    // 9.9996 rounds to 10.000 at four decimals: one digit fewer.
-    let significant = |d: usize| {
-        format!("{a:.d$}")
+        let mut digits = if a == 0.0 {
+            4
+        } else {
+            (3 - a.log10().floor() as i32).clamp(0, 8) as usize
+        };
+        // 9.9996 rounds to 10.000 at four decimals: one digit fewer.
+        let significant = format!("{a:.digits$}")
             .chars()
             .filter(char::is_ascii_digit)
             .skip_while(|&c| c == '0')
-            .count()
+            .count();
+        if digits > 0 && significant > 4 {
+            digits -= 1;
+        }
+        format!("{a:.digits$}")
     };
-    if digits > 0 && significant(digits) > 4 {
-        digits -= 1;
-    }
-    if a != 0.0 && !(1e-4..1e6).contains(&a) {
-        return if sign {
-            format!("{x:+.3e}")
-        } else {
-            format!("{x:.3e}")
-        };
-    }
-    if sign {
-        format!("{x:+.digits$}")
+    let lead = if x < 0.0 {
+        "-"
+    } else if sign {
+        "+"
     } else {
-        format!("{x:.digits$}")
-    }
+        ""
+    };
+    format!("{lead}{body}")
 }
 
 #[cfg(test)]
