@@ -418,6 +418,49 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
                 > 0.1
         );
     }
+    // drape importance: the network as it is lands on the evaluation's Edist; taking the
+    // body inputs from another drape changes the drapes; a batch of one is refused.
+    let imp = tmp.path().join("importance.json");
+    let (ok, text) = run(drape()
+        .args(["importance", "--batch", "2", "--model"])
+        .arg(&run_dir)
+        .arg("--data")
+        .arg(&data)
+        .arg("--json")
+        .arg(&imp));
+    assert!(ok, "{text}");
+    assert!(text.contains("| local body features |"), "{text}");
+    let j: serde_json::Value = serde_json::from_slice(&std::fs::read(&imp).unwrap()).unwrap();
+    assert_eq!(j["drapes"], test_rows.len());
+    let entries = j["entries"].as_array().unwrap();
+    let names: Vec<&str> = entries
+        .iter()
+        .map(|e| e["swapped"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        names,
+        ["none", "global body feature", "local body features", "both"]
+    );
+    let own = entries[0]["edist_cm"][0].as_f64().unwrap();
+    assert!((own - netd).abs() < 1e-3, "{own} vs {netd}");
+    assert!(entries[0]["edist_rise"].is_null());
+    for e in &entries[1..] {
+        let r = &e["edist_rise"];
+        assert_eq!(r["samples"], test_rows.len());
+        let (a, b) = (r["mean_a"].as_f64().unwrap(), r["mean_b"].as_f64().unwrap());
+        assert!((b - own).abs() < 1e-9 && (a - e["edist_cm"][0].as_f64().unwrap()).abs() < 1e-9);
+        assert!((r["mean_difference"].as_f64().unwrap() - (a - b)).abs() < 1e-9);
+    }
+    // The global feature enters every vertex: another body moves the drapes.
+    let moved = entries[1]["edist_cm"][0].as_f64().unwrap();
+    assert!((moved - own).abs() > 1e-4, "{moved} vs {own}");
+    let (ok, text) = run(drape()
+        .args(["importance", "--batch", "1", "--model"])
+        .arg(&run_dir)
+        .arg("--data")
+        .arg(&data));
+    assert!(!ok && text.contains("at least 2"), "{text}");
+
     let (ok, text) = run(drape()
         .args(["eval", "--split", "holdout", "--model"])
         .arg(&run_dir)

@@ -9,6 +9,8 @@
 //!   baselines measured on a dataset split (`drape eval`); [`report`] writes the report
 //!   folder; [`exr`] the float error images; [`linear`] the linear (ridge) baseline.
 //! - [`compare`]: two evaluations of the same drapes paired by sample (`drape compare`).
+//! - [`importance`]: how much a trained network relies on each body input, by taking
+//!   that input from another drape (`drape importance`).
 //! - [`speed`]: the speed-up of a network over the simulator (`drape bench speedup`).
 //! - [`sensitivity`]: how far drapes move under a micrometre disturbance of the
 //!   simulation (`drape data sensitivity`), the part of a target no input determines.
@@ -22,6 +24,7 @@ pub mod compare;
 pub mod curve;
 pub mod evaluate;
 pub mod exr;
+pub mod importance;
 pub use learn::linear;
 pub mod metrics;
 pub mod plot;

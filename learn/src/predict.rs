@@ -13,7 +13,7 @@ use crate::LearnError;
 use crate::config::TrainConfig;
 use crate::data::{Prepared, Preprocessor, collate, row_params};
 use crate::linear::Linear;
-use crate::model::{GarNet, Graph};
+use crate::model::{GarNet, Graph, Swap};
 use crate::prior::{Prior, PriorMap};
 use crate::run::open_run;
 use crate::topology::Topology;
@@ -207,8 +207,15 @@ impl Predictor {
 
     /// G^P = M + T^P for every sample, as one batch on the calling thread's pool.
     fn predict_batch(&self, samples: &[&Prepared]) -> Vec<Vec<Vec3>> {
+        self.predict_swapped(samples, Swap::NONE)
+    }
+
+    /// G^P = M + T^P for every sample, as one batch, each drape reading the body features
+    /// that `swap` names from the next drape of `samples` (the last from the first):
+    /// [`GarNet::forward_swapped`].
+    pub fn predict_swapped(&self, samples: &[&Prepared], swap: Swap) -> Vec<Vec<Vec3>> {
         let batch = collate(samples, &self.config.model, &self.device);
-        let t = self.model.forward(&batch.input, &self.graph); // [B, N, 3]
+        let t = self.model.forward_swapped(&batch.input, &self.graph, swap); // [B, N, 3]
         let v = t
             .into_data()
             .try_into_vec::<f32>()

@@ -386,6 +386,101 @@ fn a_saved_and_loaded_checkpoint_predicts_the_same() {
     }
 }
 
+#[test]
+fn swapped_body_features_equal_draping_with_the_other_body() {
+    use learn::model::Swap;
+    let device = Device::default();
+    let (_, topo) = grid(5, 4);
+    let g = Graph::new(&topo, &device);
+    let n = topo.vertices;
+    let flat = |t: Tensor<3>| t.into_data().try_to_vec::<f32>().unwrap();
+    for (variant, swap) in [
+        (
+            Variant::Global,
+            Swap {
+                global: true,
+                local: false,
+            },
+        ),
+        (
+            Variant::Local,
+            Swap {
+                global: true,
+                local: true,
+            },
+        ),
+        (
+            Variant::GlobalParams,
+            Swap {
+                global: true,
+                local: false,
+            },
+        ),
+    ] {
+        let c = ModelConfig {
+            layer_norm: true,
+            ..small_config(variant)
+        };
+        device.seed(5);
+        let net = GarNet::new(&c, 13, &device).map(&mut Jitter);
+        // Two drapes whose neighbour lists have the same pattern relative to their own
+        // body, so that exchanging the bodies exchanges every body feature.
+        let (p, pd) = (c.body_points, c.local_points());
+        let pattern = |len: usize, rows: usize, b: usize| -> Vec<i64> {
+            (0..len)
+                .map(|i| (b * rows + (i * 7919) % rows) as i64)
+                .collect()
+        };
+        let index = |per: usize, rows: usize| -> Tensor<1, Int> {
+            let v: Vec<i64> = (0..2).flat_map(|b| pattern(per, rows, b)).collect();
+            Tensor::from_data(TensorData::new(v, [2 * per]), &device)
+        };
+        let mut input = random_input(&c, 2, n, 13, &device);
+        input.pool_index = index(pd * c.local_pool_k, p);
+        input.local_index = index(n * c.local_k, pd);
+        let exchanged = Input {
+            body: Tensor::cat(
+                vec![
+                    input.body.clone().narrow(0, 1, 1),
+                    input.body.clone().narrow(0, 0, 1),
+                ],
+                0,
+            ),
+            params: Tensor::cat(
+                vec![
+                    input.params.clone().narrow(0, 1, 1),
+                    input.params.clone().narrow(0, 0, 1),
+                ],
+                0,
+            ),
+            ..input.clone()
+        };
+        let own = flat(net.forward(&input, &g));
+        assert_eq!(own, flat(net.forward_swapped(&input, &g, Swap::NONE)));
+        let swapped = flat(net.forward_swapped(&input, &g, swap));
+        let other = flat(net.forward(&exchanged, &g));
+        let worst = swapped
+            .iter()
+            .zip(&other)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "{variant:?}: {worst}");
+        // And the swap does change the prediction (the bodies differ).
+        let moved = swapped
+            .iter()
+            .zip(&own)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(moved > 1e-3, "{variant:?}: {moved}");
+        // A batch of one drape has no other drape: nothing is swapped.
+        let single = random_input(&c, 1, n, 13, &device);
+        assert_eq!(
+            flat(net.forward(&single, &g)),
+            flat(net.forward_swapped(&single, &g, swap))
+        );
+    }
+}
+
 /// Adds 0.1 to every parameter.
 struct Jitter;
 impl burn::module::ModuleMapper for Jitter {

@@ -125,3 +125,52 @@ pub fn compare(args: CompareArgs) -> anyhow::Result<()> {
     print!("{}", c.table());
     Ok(())
 }
+
+/// `drape importance`.
+#[derive(Debug, Args)]
+pub struct ImportanceArgs {
+    /// Run folder of a trained network (`drape train -o`); its best weights are used.
+    #[arg(long = "model", value_name = "RUN_DIR")]
+    run: PathBuf,
+    /// Dataset folder (default: the run config's `data`).
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// Split to measure: train, val or test.
+    #[arg(long, default_value = "test")]
+    split: String,
+    /// Drapes per batch; each drape takes the swapped inputs from the next of its batch.
+    #[arg(long, default_value_t = 16)]
+    batch: usize,
+    /// Measure only the first N drapes of the split.
+    #[arg(long, value_name = "N")]
+    limit: Option<usize>,
+    /// Also write the measurement (per-way means and paired rises) as JSON to this file.
+    #[arg(long, value_name = "FILE.json")]
+    json: Option<PathBuf>,
+}
+
+/// Runs `drape importance`.
+pub fn importance(args: ImportanceArgs) -> anyhow::Result<()> {
+    use eval::importance::{ImportanceOptions, measure};
+    let split = Split::parse(&args.split)?;
+    let (config, _) = learn::run::open_run(&args.run)?;
+    let dir = args.data.unwrap_or_else(|| config.data.clone());
+    let data = Dataset::open(&dir)?;
+    let report = measure(
+        &args.run,
+        &data,
+        &ImportanceOptions {
+            split,
+            limit: args.limit,
+            batch: args.batch,
+            progress: true,
+        },
+    )?;
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&report)? + "\n";
+        std::fs::write(path, text)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    }
+    print!("{}", report.table());
+    Ok(())
+}

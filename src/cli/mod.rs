@@ -68,6 +68,10 @@ pub enum Command {
     /// network and a baseline): per figure the mean difference, its standard error, and
     /// on how many drapes each is lower.
     Compare(evaluate::CompareArgs),
+    /// How much a trained network relies on each body input (permutation importance): the
+    /// test drapes once as they are and once per input with that input taken from another
+    /// drape of the batch; Edist and Enorm, and their paired rise.
+    Importance(evaluate::ImportanceArgs),
     /// Reproduce the paper's tables on our data: generate the plan's datasets, train its
     /// networks and fine-tunes, evaluate them, time the speed-up, write
     /// docs/reproduction.md and .json. Resumable.
@@ -103,6 +107,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Predict(args) => learn::predict(*args, &ctx),
         Command::Eval(args) => evaluate::run(args),
         Command::Compare(args) => evaluate::compare(args),
+        Command::Importance(args) => evaluate::importance(args),
         Command::Quickstart(args) => quickstart::run(args, &ctx),
         Command::Reproduce(args) => reproduce::run(args, &ctx),
     }

@@ -232,6 +232,34 @@ pub fn positional_encoding(x: Tensor<3>, bands: usize) -> Tensor<3> {
     Tensor::cat(parts, 2)
 }
 
+/// Body features a forward pass takes from another drape of its batch
+/// ([`GarNet::forward_swapped`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Swap {
+    /// The global body feature (GarNet-Global-Params: the shape-and-pose vector), which
+    /// enters the garment stream and the fusion.
+    pub global: bool,
+    /// GarNet-Local's local body features of each garment vertex.
+    pub local: bool,
+}
+
+impl Swap {
+    /// Every input the drape's own.
+    pub const NONE: Self = Self {
+        global: false,
+        local: false,
+    };
+}
+
+/// `x` with its batch (first) axis rotated by one: row `b` holds row `(b + 1) mod B`.
+fn next_in_batch<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    let b = x.dims()[0];
+    if b < 2 {
+        return x;
+    }
+    Tensor::cat(vec![x.clone().narrow(0, 1, b - 1), x.narrow(0, 0, 1)], 0)
+}
+
 /// Width of the local body feature after its reduction layer (our choice).
 pub const LOCAL_WIDTH: usize = 32;
 
@@ -298,6 +326,17 @@ impl GarNet {
     /// # Shapes
     /// `input` as documented on [`Input`] -> `[B, N, 3]`.
     pub fn forward(&self, input: &Input, g: &Graph) -> Tensor<3> {
+        self.forward_swapped(input, g, Swap::NONE)
+    }
+
+    /// [`GarNet::forward`] with the body features that `swap` names taken from the next
+    /// drape of the batch (drape `b` reads drape `(b + 1) mod B`'s), everything else from
+    /// the drape's own inputs: how much a trained network relies on each (permutation
+    /// importance, `drape importance`). A batch of one drape swaps nothing.
+    ///
+    /// # Shapes
+    /// As [`GarNet::forward`].
+    pub fn forward_swapped(&self, input: &Input, g: &Graph, swap: Swap) -> Tensor<3> {
         let [b, n, _] = input.warped.dims();
         // Body stream.
         let inv = 1.0 / self.length_scale;
@@ -316,6 +355,11 @@ impl GarNet {
                 (Some(p), g)
             }
             None => (None, input.params.clone()), // [B, S]
+        };
+        let body_global = if swap.global {
+            next_in_batch(body_global)
+        } else {
+            body_global
         };
         let global = body_global.unsqueeze_dim::<3>(1); // [B, 1, G]
         // Garment stream.
@@ -350,7 +394,11 @@ impl GarNet {
                 .reshape([b * pd, l]); // [B * P', L]
             let local = host::gather_max(pooled, &input.local_index, k) // [B * N, L]
                 .reshape([b, n, l]); // [B, N, L]
-            fused.push(local);
+            fused.push(if swap.local {
+                next_in_batch(local)
+            } else {
+                local
+            });
         }
         let f = leaky(
             normed(self.fusion_in_norm.as_ref(), self.fusion_in.forward(fused)),
