@@ -439,7 +439,12 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         .collect();
     assert_eq!(
         names,
-        ["none", "global body feature", "local body features", "both"]
+        [
+            "none",
+            "global body feature",
+            "local body features",
+            "all body inputs"
+        ]
     );
     let own = entries[0]["edist_cm"][0].as_f64().unwrap();
     assert!((own - netd).abs() < 1e-3, "{own} vs {netd}");
@@ -454,6 +459,21 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     // The global feature enters every vertex: another body moves the drapes.
     let moved = entries[1]["edist_cm"][0].as_f64().unwrap();
     assert!((moved - own).abs() > 1e-4, "{moved} vs {own}");
+    // A network with model.body_offsets trains, drapes, and has their row.
+    let offsets = config(tmp.path(), 4, "local", "\nbody_offsets = true");
+    let offsets_run = tmp.path().join("run-offsets");
+    let (ok, text) = train(&offsets, &data, &offsets_run, &[]);
+    assert!(ok, "{text}");
+    let (ok, text) = run(drape()
+        .args(["importance", "--batch", "2", "--model"])
+        .arg(&offsets_run)
+        .arg("--data")
+        .arg(&data));
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("| body offsets |") && text.contains("| all body inputs |"),
+        "{text}"
+    );
     let (ok, text) = run(drape()
         .args(["importance", "--batch", "1", "--model"])
         .arg(&run_dir)

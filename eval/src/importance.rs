@@ -7,8 +7,8 @@
 //! else, the DQS-warped garment above all, stays the drape's own
 //! ([`learn::model::GarNet::forward_swapped`]). The inputs: the global body feature (the
 //! PointNet stream's max-pooled feature; the shape-and-pose vector of
-//! GarNet-Global-Params), GarNet-Local's local body features of each garment vertex, and
-//! both. If Edist hardly rises when an input belongs to another body, the network has
+//! GarNet-Global-Params), GarNet-Local's local body features of each garment vertex, the
+//! per-vertex body offsets (`model.body_offsets`), and all of them. If Edist hardly rises when an input belongs to another body, the network has
 //! learned little from it; the rise against the drape's own inputs is paired per drape.
 
 use std::path::Path;
@@ -16,7 +16,7 @@ use std::path::Path;
 use dataset::config::Split;
 use dataset::reader::Dataset;
 use dataset::shard::Row;
-use learn::config::Variant;
+use learn::config::{ModelConfig, Variant};
 use learn::model::Swap;
 use learn::predict::Predictor;
 use serde::Serialize;
@@ -57,34 +57,43 @@ impl ImportanceOptions {
     }
 }
 
-/// The inputs a variant can have swapped, with their names: none (the reference), then
-/// one entry per body input, then all of them together when there are two.
-pub fn swaps(variant: Variant) -> Vec<(&'static str, Swap)> {
-    let mut out = vec![
-        ("none", Swap::NONE),
-        (
-            "global body feature",
-            Swap {
-                global: true,
-                local: false,
-            },
-        ),
-    ];
-    if variant == Variant::Local {
-        out.push((
-            "local body features",
-            Swap {
-                global: false,
-                local: true,
-            },
-        ));
-        out.push((
-            "both",
-            Swap {
-                global: true,
-                local: true,
-            },
-        ));
+/// The inputs a network of `model` can have swapped, with their names: none (the
+/// reference), then one entry per body input, then all of them together when there are
+/// two or more.
+pub fn swaps(model: &ModelConfig) -> Vec<(&'static str, Swap)> {
+    let mut out = vec![("none", Swap::NONE)];
+    out.push((
+        if model.variant == Variant::GlobalParams {
+            "shape and pose parameters"
+        } else {
+            "global body feature"
+        },
+        Swap {
+            global: true,
+            ..Swap::NONE
+        },
+    ));
+    if model.variant == Variant::Local {
+        let one = Swap {
+            local: true,
+            ..Swap::NONE
+        };
+        out.push(("local body features", one));
+    }
+    if model.body_offsets {
+        let one = Swap {
+            offsets: true,
+            ..Swap::NONE
+        };
+        out.push(("body offsets", one));
+    }
+    if out.len() > 2 {
+        let all = Swap {
+            global: true,
+            local: model.variant == Variant::Local,
+            offsets: model.body_offsets,
+        };
+        out.push(("all body inputs", all));
     }
     out
 }
@@ -153,7 +162,7 @@ pub fn measure(
             opts.split.name()
         )));
     }
-    let ways = swaps(variant);
+    let ways = swaps(&net.config.model);
     let triangles = &data.statics.garment_triangles;
     // Per way, per drape: (Edist, Enorm).
     let mut figures: Vec<Vec<(f64, f64)>> = vec![Vec::with_capacity(n); ways.len()];
@@ -275,14 +284,50 @@ mod tests {
     }
 
     #[test]
-    fn local_has_four_ways_and_the_others_two() {
-        let names = |v| swaps(v).iter().map(|x| x.0).collect::<Vec<_>>();
+    fn each_body_input_has_its_way() {
+        let names = |variant, body_offsets| {
+            let c = ModelConfig {
+                variant,
+                body_offsets,
+                ..ModelConfig::default()
+            };
+            swaps(&c).iter().map(|x| x.0).collect::<Vec<_>>()
+        };
         assert_eq!(
-            names(Variant::Local),
-            ["none", "global body feature", "local body features", "both"]
+            names(Variant::Local, false),
+            [
+                "none",
+                "global body feature",
+                "local body features",
+                "all body inputs"
+            ]
         );
-        assert_eq!(names(Variant::Global), ["none", "global body feature"]);
-        assert_eq!(swaps(Variant::Naive)[0].1, Swap::NONE);
+        assert_eq!(
+            names(Variant::Local, true),
+            [
+                "none",
+                "global body feature",
+                "local body features",
+                "body offsets",
+                "all body inputs"
+            ]
+        );
+        assert_eq!(
+            names(Variant::Global, false),
+            ["none", "global body feature"]
+        );
+        assert_eq!(
+            names(Variant::GlobalParams, false),
+            ["none", "shape and pose parameters"]
+        );
+        let c = ModelConfig {
+            variant: Variant::Global,
+            body_offsets: true,
+            ..ModelConfig::default()
+        };
+        let all = swaps(&c).last().unwrap().1;
+        assert!(all.global && all.offsets && !all.local);
+        assert_eq!(swaps(&c)[0].1, Swap::NONE);
     }
 
     #[test]

@@ -152,6 +152,16 @@ pub struct ModelConfig {
     /// (`learn::kernel`, session 30). Left out of the saved config when `none`.
     #[serde(skip_serializing_if = "PriorKind::is_none")]
     pub prior: PriorKind,
+    /// Give every garment vertex its own geometry relative to the body (default false: the
+    /// paper's inputs): the offset from the vertex to the closest posed body vertex (in
+    /// `length_scale` units), that body vertex's unit normal, and the vertex's signed
+    /// distance along it, 7 numbers appended to the garment point-wise MLP's input, so
+    /// the FeaStNet stack and the fusion see them too. Any variant with a body stream.
+    /// Asks whether GarNet-Local's local body features, which the trained network hardly
+    /// uses (`drape importance`, docs/learn.md session 43), lack relative geometry. Left out
+    /// of the saved config when false.
+    #[serde(skip_serializing_if = "is_false")]
+    pub body_offsets: bool,
 }
 
 /// What the network's input garment is ([`ModelConfig::prior`]).
@@ -215,6 +225,7 @@ impl Default for ModelConfig {
             zero_init_residuals: false,
             layer_norm: false,
             prior: PriorKind::None,
+            body_offsets: false,
         }
     }
 }
@@ -227,10 +238,17 @@ impl ModelConfig {
             PriorKind::None => self.variant.paper_name().to_string(),
             p => format!("{} over the {} prior", self.variant.paper_name(), p.name()),
         };
-        if self.layer_norm {
-            name + " with layer normalisation"
-        } else {
+        let with: Vec<&str> = [
+            (self.layer_norm, "layer normalisation"),
+            (self.body_offsets, "body offsets"),
+        ]
+        .into_iter()
+        .filter_map(|(on, what)| on.then_some(what))
+        .collect();
+        if with.is_empty() {
             name
+        } else {
+            format!("{name} with {}", with.join(" and "))
         }
     }
 
@@ -269,6 +287,7 @@ impl ModelConfig {
             zero_init_residuals: self.zero_init_residuals,
             layer_norm: self.layer_norm,
             prior: self.prior,
+            body_offsets: self.body_offsets,
             ..preset
         }
     }
@@ -328,6 +347,13 @@ impl ModelConfig {
             return bad(
                 "model.layer_norm and model.zero_init_residuals together: the normalisation \
                  would scale a block that starts at zero back to unit size (use one)"
+                    .into(),
+            );
+        }
+        if self.body_offsets && self.variant == Variant::GlobalParams {
+            return bad(
+                "model.body_offsets needs the posed body; GarNet-Global-Params reads only the \
+                 shape and pose parameters"
                     .into(),
             );
         }
@@ -584,6 +610,29 @@ mod tests {
                 .unwrap_err()
                 .contains("cpu or paper")
         );
+    }
+
+    #[test]
+    fn body_offsets_are_off_by_default_kept_by_widths_named_and_need_a_body() {
+        let c = parse("").unwrap();
+        assert!(!c.model.body_offsets);
+        assert!(!toml::to_string(&c).unwrap().contains("body_offsets"));
+        let c = parse("[model]\nlayer_norm = true\nbody_offsets = true").unwrap();
+        c.model.validate().unwrap();
+        let saved = toml::to_string(&c).unwrap();
+        assert!(saved.contains("body_offsets = true"), "{saved}");
+        assert_eq!(toml::from_str::<TrainConfig>(&saved).unwrap(), c);
+        assert!(c.model.with_widths(Widths::Paper).body_offsets);
+        assert_eq!(
+            c.model.display_name(),
+            "GarNet-Local with layer normalisation and body offsets"
+        );
+        let params = ModelConfig {
+            variant: Variant::GlobalParams,
+            ..c.model.clone()
+        };
+        let e = params.validate().unwrap_err().to_string();
+        assert!(e.contains("body_offsets"), "{e}");
     }
 
     #[test]

@@ -36,6 +36,10 @@ pub struct Prepared {
     pub pool: Vec<u32>,
     /// GarNet-Local neighbours of each garment vertex (rows of P'), `N * K`.
     pub local: Vec<u32>,
+    /// With `model.body_offsets`, per garment vertex: the offset to the closest posed body
+    /// vertex (in `length_scale` units), its unit normal, and the signed distance along it
+    /// (length units; negative inside), `N * 7` ([`body_offsets`]); empty without.
+    pub offsets: Vec<f32>,
     /// Full body vertices, root-relative, pushed out along their normals (for L_pen).
     pub pen_points: Vec<Vec3>,
     /// Their unit normals.
@@ -128,6 +132,16 @@ impl Preprocessor {
         } else {
             (Vec::new(), Vec::new())
         };
+        let offsets = if self.config.body_offsets {
+            body_offsets(
+                &body_rel,
+                &normals,
+                &warped,
+                self.config.length_scale as f32,
+            )
+        } else {
+            Vec::new()
+        };
         let pen_points = body_rel
             .iter()
             .zip(&normals)
@@ -149,6 +163,7 @@ impl Preprocessor {
             rq,
             pool,
             local,
+            offsets,
             pen_points,
             pen_normals: normals,
         }
@@ -211,6 +226,21 @@ pub fn knn(points: &[Vec3], queries: &[Vec3], k: usize) -> Vec<u32> {
     out
 }
 
+/// [`Prepared::offsets`]: for each garment vertex x, its closest body vertex p (normal n),
+/// `[(p - x) / scale, n, n . (x - p) / scale]`.
+pub fn body_offsets(body: &[Vec3], normals: &[Vec3], garment: &[Vec3], scale: f32) -> Vec<f32> {
+    let inv = 1.0 / scale;
+    nearest(body, garment)
+        .iter()
+        .zip(garment)
+        .flat_map(|(&i, &x)| {
+            let (p, n) = (body[i as usize], normals[i as usize]);
+            let d = (p - x) * inv;
+            [d.x, d.y, d.z, n.x, n.y, n.z, -n.dot(d)]
+        })
+        .collect()
+}
+
 /// For each query, the index of its nearest point.
 pub fn nearest(points: &[Vec3], queries: &[Vec3]) -> Vec<u32> {
     knn(points, queries, 1)
@@ -261,6 +291,9 @@ pub fn collate(samples: &[&Prepared], config: &ModelConfig, device: &Device) -> 
     };
     let pool_index = offset(&|x| &x.pool, p);
     let local_index = offset(&|x| &x.local, pd);
+    let offsets = config.body_offsets.then(|| {
+        Tensor::<3>::from_data(TensorData::new(floats(&|x| &x.offsets), [b, n, 7]), device)
+    });
     Batch {
         input: Input {
             body,
@@ -268,6 +301,7 @@ pub fn collate(samples: &[&Prepared], config: &ModelConfig, device: &Device) -> 
             warped,
             pool_index,
             local_index,
+            offsets,
         },
         target,
     }
@@ -276,6 +310,31 @@ pub fn collate(samples: &[&Prepared], config: &ModelConfig, device: &Device) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn body_offsets_point_to_the_closest_body_vertex_and_sign_the_side() {
+        // A floor of body vertices at y = 0 facing +y; one vertex far off at (5, 0, 0).
+        let body = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(5.0, 0.0, 0.0),
+        ];
+        let normals = vec![Vec3::Y; 3];
+        let garment = vec![Vec3::new(0.9, 0.2, 0.0), Vec3::new(0.1, -0.3, 0.0)];
+        let o = body_offsets(&body, &normals, &garment, 0.1);
+        assert_eq!(o.len(), 14);
+        let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5);
+        // Above the floor, closest to (1, 0, 0): offset (0.1, -0.2, 0) / 0.1, distance +2.
+        assert!(
+            close(&o[..7], &[1.0, -2.0, 0.0, 0.0, 1.0, 0.0, 2.0]),
+            "{o:?}"
+        );
+        // Below it (inside), closest to the origin: distance -3.
+        assert!(
+            close(&o[7..], &[-1.0, 3.0, 0.0, 0.0, 1.0, 0.0, -3.0]),
+            "{o:?}"
+        );
+    }
 
     /// The k-d tree's k nearest, searched in parallel, are a brute-force search's: the
     /// same sets, nearest first, for more queries than one task takes.

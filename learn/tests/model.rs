@@ -61,6 +61,9 @@ fn random_input(c: &ModelConfig, b: usize, n: usize, params: usize, device: &Dev
         warped: Tensor::random([b, n, 3], Distribution::Default, device),
         pool_index: idx(b * pd * c.local_pool_k, b * p),
         local_index: idx(b * n * c.local_k, b * pd),
+        offsets: c
+            .body_offsets
+            .then(|| Tensor::random([b, n, 7], Distribution::Default, device)),
     }
 }
 
@@ -69,13 +72,40 @@ fn every_variant_outputs_one_translation_per_vertex() {
     let device = Device::default();
     let (_, topo) = grid(6, 5);
     let g = Graph::new(&topo, &device);
-    for variant in Variant::ALL {
-        let c = small_config(variant);
+    let with_offsets = [Variant::Naive, Variant::Global, Variant::Local]
+        .map(|v| (v, true))
+        .into_iter();
+    for (variant, body_offsets) in Variant::ALL
+        .map(|v| (v, false))
+        .into_iter()
+        .chain(with_offsets)
+    {
+        let c = ModelConfig {
+            body_offsets,
+            ..small_config(variant)
+        };
         c.validate().unwrap();
         let net = GarNet::new(&c, 13, &device);
         let input = random_input(&c, 2, topo.vertices, 13, &device);
         let out = net.forward(&input, &g);
-        assert_eq!(out.dims(), [2, 30, 3], "{variant:?}");
+        assert_eq!(out.dims(), [2, 30, 3], "{variant:?} {body_offsets}");
+        if body_offsets {
+            // The 7 offsets widen the garment MLP's first layer by 7 inputs.
+            let plain = GarNet::new(&small_config(variant), 13, &device);
+            assert_eq!(
+                net.num_params() - plain.num_params(),
+                7 * c.garment_mlp[0],
+                "{variant:?}"
+            );
+            let n = topo.vertices;
+            let flops = |c: &ModelConfig| learn::model::forward_flops(c, 13, n, 7);
+            let extra = flops(&c) - flops(&small_config(variant));
+            assert_eq!(
+                extra,
+                2.0 * (n * 7 * c.garment_mlp[0]) as f64,
+                "{variant:?}"
+            );
+        }
         // The last layer starts at zero: an untrained network returns M (the DQS warp).
         let max = out.abs().max().into_scalar::<f32>();
         assert_eq!(max, 0.0, "{variant:?}");
@@ -399,7 +429,7 @@ fn swapped_body_features_equal_draping_with_the_other_body() {
             Variant::Global,
             Swap {
                 global: true,
-                local: false,
+                ..Swap::NONE
             },
         ),
         (
@@ -407,18 +437,20 @@ fn swapped_body_features_equal_draping_with_the_other_body() {
             Swap {
                 global: true,
                 local: true,
+                offsets: true,
             },
         ),
         (
             Variant::GlobalParams,
             Swap {
                 global: true,
-                local: false,
+                ..Swap::NONE
             },
         ),
     ] {
         let c = ModelConfig {
             layer_norm: true,
+            body_offsets: swap.offsets,
             ..small_config(variant)
         };
         device.seed(5);
@@ -438,7 +470,10 @@ fn swapped_body_features_equal_draping_with_the_other_body() {
         let mut input = random_input(&c, 2, n, 13, &device);
         input.pool_index = index(pd * c.local_pool_k, p);
         input.local_index = index(n * c.local_k, pd);
+        let first_last =
+            |t: Tensor<3>| Tensor::cat(vec![t.clone().narrow(0, 1, 1), t.narrow(0, 0, 1)], 0);
         let exchanged = Input {
+            offsets: input.offsets.clone().map(first_last),
             body: Tensor::cat(
                 vec![
                     input.body.clone().narrow(0, 1, 1),
@@ -642,6 +677,7 @@ fn consistent_input(c: &ModelConfig, n: usize, samples: &[usize], device: &Devic
         warped: rows(200, n, 3),
         pool_index: Tensor::from_data(TensorData::new(pool, [pl]), device),
         local_index: Tensor::from_data(TensorData::new(local, [ll]), device),
+        offsets: None,
     }
 }
 

@@ -36,6 +36,9 @@ pub struct Input {
     /// For each garment vertex, its `local_k` nearest downsampled body points, as rows of
     /// the flattened `[B * P']`, `[B * N * K]` (GarNet-Local).
     pub local_index: Tensor<1, Int>,
+    /// Each garment vertex's geometry relative to the closest body vertex, `[B, N, 7]`
+    /// (`model.body_offsets`; [`crate::data::body_offsets`]).
+    pub offsets: Option<Tensor<3>>,
 }
 
 /// PointNet's spatial transformer on the body points: a 3 x 3 matrix per sample, identity
@@ -209,9 +212,10 @@ pub struct GarNet {
     fourier_bands: usize,
 }
 
-/// Inputs of the garment point-wise MLP: xyz and, with `fourier_bands`, their encoding.
+/// Inputs of the garment point-wise MLP: xyz and, with `fourier_bands`, their encoding;
+/// with `body_offsets`, the 7 numbers of the vertex's geometry relative to the body.
 fn garment_inputs(c: &ModelConfig) -> usize {
-    3 + 6 * c.fourier_bands
+    3 + 6 * c.fourier_bands + if c.body_offsets { 7 } else { 0 }
 }
 
 /// The positional encoding of [`ModelConfig::fourier_bands`]: `[x, sin(x), cos(x),
@@ -241,6 +245,8 @@ pub struct Swap {
     pub global: bool,
     /// GarNet-Local's local body features of each garment vertex.
     pub local: bool,
+    /// Each vertex's geometry relative to the body (`model.body_offsets`).
+    pub offsets: bool,
 }
 
 impl Swap {
@@ -248,6 +254,7 @@ impl Swap {
     pub const NONE: Self = Self {
         global: false,
         local: false,
+        offsets: false,
     };
 }
 
@@ -364,9 +371,13 @@ impl GarNet {
         let global = body_global.unsqueeze_dim::<3>(1); // [B, 1, G]
         // Garment stream.
         let xyz = input.warped.clone() * inv; // [B, N, 3]
-        let point = self
-            .garment_mlp
-            .forward(positional_encoding(xyz.clone(), self.fourier_bands)); // [B, N, Cg]
+        let encoded = positional_encoding(xyz.clone(), self.fourier_bands);
+        let encoded = match &input.offsets {
+            Some(o) if swap.offsets => Tensor::cat(vec![encoded, next_in_batch(o.clone())], 2),
+            Some(o) => Tensor::cat(vec![encoded, o.clone()], 2), // [B, N, 3 + ... + 7]
+            None => encoded,
+        };
+        let point = self.garment_mlp.forward(encoded); // [B, N, Cg]
         let h0 = leaky(
             normed(
                 self.conv_in_norm.as_ref(),
