@@ -494,18 +494,10 @@ fn swapped_body_features_equal_draping_with_the_other_body() {
         assert_eq!(own, flat(net.forward_swapped(&input, &g, Swap::NONE)));
         let swapped = flat(net.forward_swapped(&input, &g, swap));
         let other = flat(net.forward(&exchanged, &g));
-        let worst = swapped
-            .iter()
-            .zip(&other)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let worst = max_abs_diff(&swapped, &other);
         assert!(worst < 1e-5, "{variant:?}: {worst}");
         // And the swap does change the prediction (the bodies differ).
-        let moved = swapped
-            .iter()
-            .zip(&own)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let moved = max_abs_diff(&swapped, &own);
         assert!(moved > 1e-3, "{variant:?}: {moved}");
         // A batch of one drape has no other drape: nothing is swapped.
         let single = random_input(&c, 1, n, 13, &device);
@@ -514,6 +506,15 @@ fn swapped_body_features_equal_draping_with_the_other_body() {
             flat(net.forward_swapped(&single, &g, swap))
         );
     }
+}
+
+/// The largest absolute difference between two equally long lists.
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max)
 }
 
 /// Adds 0.1 to every parameter.
@@ -734,11 +735,7 @@ fn layer_norm_adds_a_scale_and_shift_per_hidden_feature_and_a_drape_predicts_the
     }
     assert_eq!(batch.len(), 2 * n * 3);
     assert!(batch.iter().any(|v| v.abs() > 1e-3));
-    let worst = batch
-        .iter()
-        .zip(&alone)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let worst = max_abs_diff(&batch, &alone);
     assert!(worst < 1e-4, "batch and one at a time differ by {worst}");
     // The normalisation is there: the same linear weights without it (the norms draw no
     // random numbers, so the same seed gives the same weights) predict something else.

@@ -8,56 +8,72 @@ use dataset::reader::Dataset;
 use eval::evaluate::{EvalOptions, METHODS, evaluate, method_title};
 use eval::report::write_report;
 
-/// `drape eval`.
+/// A trained network and a dataset split: what `drape eval` and `drape importance` read.
 #[derive(Debug, Args)]
-pub struct EvalArgs {
+pub struct RunOnSplit {
     /// Run folder of a trained network (`drape train -o`); its best weights are used.
     #[arg(long = "model", value_name = "RUN_DIR")]
     run: PathBuf,
     /// Dataset folder (default: the run config's `data`).
     #[arg(long, value_name = "DIR")]
     data: Option<PathBuf>,
-    /// Split to evaluate: train, val or test.
+    /// Split to use: train, val or test.
     #[arg(long, default_value = "test")]
     split: String,
+    /// Use only the first N samples of the split.
+    #[arg(long, value_name = "N")]
+    limit: Option<usize>,
+}
+
+impl RunOnSplit {
+    /// The split, and the dataset opened (the run config's unless `--data`).
+    fn open(&self) -> anyhow::Result<(Split, PathBuf, Dataset)> {
+        let split = Split::parse(&self.split)?;
+        let (config, _) = learn::run::open_run(&self.run)?;
+        let dir = self.data.clone().unwrap_or_else(|| config.data.clone());
+        let data = Dataset::open(&dir)?;
+        if self.limit == Some(0) {
+            anyhow::bail!("--limit must be at least 1");
+        }
+        Ok((split, dir, data))
+    }
+}
+
+/// `drape eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    #[command(flatten)]
+    on: RunOnSplit,
     /// Report folder: report.md, metrics.json, samples.csv, curves (CSV, PNG), renders.
     #[arg(short, long, value_name = "REPORT_DIR")]
     output: PathBuf,
     /// Samples per network batch.
     #[arg(long, default_value_t = 8)]
     batch: usize,
-    /// Evaluate only the first N samples of the split.
-    #[arg(long, value_name = "N")]
-    limit: Option<usize>,
 }
 
 /// Runs `drape eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
-    let split = Split::parse(&args.split)?;
-    let (config, _) = learn::run::open_run(&args.run)?;
-    let dir = args.data.unwrap_or_else(|| config.data.clone());
-    let data = Dataset::open(&dir)?;
-    if args.limit == Some(0) {
-        anyhow::bail!("--limit must be at least 1");
-    }
+    let (split, dir, data) = args.on.open()?;
+    let (run, limit) = (&args.on.run, args.on.limit);
     eprintln!(
         "evaluating {} on {} ({} split, {} samples)",
-        args.run.display(),
+        run.display(),
         dir.display(),
         split.name(),
-        data.count(split).min(args.limit.unwrap_or(usize::MAX))
+        data.count(split).min(limit.unwrap_or(usize::MAX))
     );
     let ev = evaluate(
-        &args.run,
+        run,
         &data,
         &EvalOptions {
             split,
             batch: args.batch,
-            limit: args.limit,
+            limit,
             progress: true,
         },
     )?;
-    let sums = write_report(&args.output, &args.run, &data, split, &ev)?;
+    let sums = write_report(&args.output, run, &data, split, &ev)?;
     println!(
         "{:<20} {:>14} {:>14}",
         "method", "Edist (cm)", "Enorm (deg)"
@@ -129,21 +145,11 @@ pub fn compare(args: CompareArgs) -> anyhow::Result<()> {
 /// `drape importance`.
 #[derive(Debug, Args)]
 pub struct ImportanceArgs {
-    /// Run folder of a trained network (`drape train -o`); its best weights are used.
-    #[arg(long = "model", value_name = "RUN_DIR")]
-    run: PathBuf,
-    /// Dataset folder (default: the run config's `data`).
-    #[arg(long, value_name = "DIR")]
-    data: Option<PathBuf>,
-    /// Split to measure: train, val or test.
-    #[arg(long, default_value = "test")]
-    split: String,
+    #[command(flatten)]
+    on: RunOnSplit,
     /// Drapes per batch; each drape takes the swapped inputs from the next of its batch.
     #[arg(long, default_value_t = 16)]
     batch: usize,
-    /// Measure only the first N drapes of the split.
-    #[arg(long, value_name = "N")]
-    limit: Option<usize>,
     /// Also write the measurement (per-way means and paired rises) as JSON to this file.
     #[arg(long, value_name = "FILE.json")]
     json: Option<PathBuf>,
@@ -152,16 +158,13 @@ pub struct ImportanceArgs {
 /// Runs `drape importance`.
 pub fn importance(args: ImportanceArgs) -> anyhow::Result<()> {
     use eval::importance::{ImportanceOptions, measure};
-    let split = Split::parse(&args.split)?;
-    let (config, _) = learn::run::open_run(&args.run)?;
-    let dir = args.data.unwrap_or_else(|| config.data.clone());
-    let data = Dataset::open(&dir)?;
+    let (split, _, data) = args.on.open()?;
     let report = measure(
-        &args.run,
+        &args.on.run,
         &data,
         &ImportanceOptions {
             split,
-            limit: args.limit,
+            limit: args.on.limit,
             batch: args.batch,
             progress: true,
         },
