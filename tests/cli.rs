@@ -820,7 +820,9 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
             .to_string()
     };
     assert!(
-        line("jeans").contains("[14 sizes by waist, hips, height, friction 0.8, 30 substeps]"),
+        line("jeans").contains(
+            "[14 sizes by waist, hips, height, friction 0.8 (0.1 beyond 8 cm of the top opening), 30 substeps]"
+        ),
         "{list}"
     );
     assert!(
@@ -853,6 +855,7 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     };
     let (o, r) = check("slippery-jeans", "2", &out.path().join("slippery.json"));
     assert_eq!(r["summary"]["friction"], 0.3);
+    assert!(r["summary"]["below_band"].is_null());
     // Every drape counts its edges through the body and at double length.
     for d in r["drapes"].as_array().unwrap() {
         assert!(

@@ -62,7 +62,8 @@ impl Default for GenOptions {
 }
 
 /// What a dataset folder was started with (`config.json`): the resolved config and its
-/// sha256, the garment's own friction and substeps (for a garment that has them) and the program's
+/// sha256, the garment's own friction, friction below its band and substeps (for a garment
+/// that has them) and the program's
 /// sha256 (absent in folders started before they were recorded).
 #[derive(Debug, Serialize, Deserialize)]
 struct Stamp {
@@ -72,6 +73,8 @@ struct Stamp {
     garment_friction: Option<f32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     garment_substeps: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    garment_below_band: Option<sim::garment::def::BelowBand>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     program_sha256: Option<String>,
 }
@@ -378,6 +381,7 @@ pub fn generate(
         config: config.resolved_json(),
         garment_friction: None,
         garment_substeps: None,
+        garment_below_band: None,
         program_sha256: crate::manifest::program_sha256(),
     };
     // The stored config compared as read back from text: serde_json's parser does not
@@ -397,12 +401,15 @@ pub fn generate(
     let stamp = Stamp {
         garment_friction: template.meta.friction,
         garment_substeps: template.meta.substeps,
+        garment_below_band: template.meta.below_band,
         ..stamp
     };
     // Whether the drapes of this folder all come from this program.
     let mut one_build = true;
     if let Some(o) = &old {
-        if o.garment_friction != stamp.garment_friction {
+        if o.garment_friction != stamp.garment_friction
+            || o.garment_below_band != stamp.garment_below_band
+        {
             return Err(refuse("garment material (its own friction)"));
         }
         if o.garment_substeps != stamp.garment_substeps {
@@ -535,6 +542,7 @@ pub fn generate(
     );
     manifest.size_templates = wardrobe.size_fingerprints();
     manifest.friction = Some(wardrobe.friction());
+    manifest.below_band = wardrobe.below_band();
     manifest.garment_substeps = wardrobe.substeps();
     manifest.program_sha256 = stamp.program_sha256.clone().filter(|_| one_build);
     let manifest_path = dir.join(manifest_name(opts));

@@ -107,6 +107,10 @@ pub struct Manifest {
     /// written before it was recorded: the config's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f32>,
+    /// The garment's friction below a band along its top opening (its definition's
+    /// `[material] below_band`), absent when `friction` held everywhere.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub below_band: Option<sim::garment::def::BelowBand>,
     /// The garment's own substeps a frame the drapes ran with (its definition's
     /// `[simulation]`), absent when they ran at the simulator config's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -193,6 +197,7 @@ impl Manifest {
             static_sha256,
             size_templates: BTreeMap::new(),
             friction: None,
+            below_band: None,
             garment_substeps: None,
             program_sha256: None,
             shards,

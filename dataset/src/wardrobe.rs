@@ -114,6 +114,12 @@ impl Wardrobe {
         self.base_cloth.friction
     }
 
+    /// The garment's friction below a band along its top opening (its definition's
+    /// `[material] below_band`), shared by every size.
+    pub fn below_band(&self) -> Option<sim::garment::def::BelowBand> {
+        self.base.meta.below_band
+    }
+
     /// The garment's own substeps a frame (its definition's `[simulation]`; `None`: the
     /// simulator config's), shared by every size.
     pub fn substeps(&self) -> Option<u32> {

@@ -277,6 +277,19 @@ impl<'w> Redraper<'w> {
                 config.garment
             )));
         }
+        // And its friction below its band (none in a manifest written before it existed).
+        if data.manifest.below_band != wardrobe.below_band() {
+            let say = |b: Option<sim::garment::def::BelowBand>| {
+                b.map_or_else(|| "none".to_string(), |b| b.describe())
+            };
+            return Err(EvalError::Invalid(format!(
+                "{} was draped with the {}'s friction below its band {}; it is {} here (the garment's `[material] below_band` changed): regenerate the dataset",
+                data.dir.display(),
+                config.garment,
+                say(data.manifest.below_band),
+                say(wardrobe.below_band())
+            )));
+        }
         // And its own substeps (none in a manifest written before they existed).
         if data.manifest.garment_substeps != wardrobe.substeps() {
             return Err(EvalError::Invalid(format!(

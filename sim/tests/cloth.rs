@@ -423,6 +423,11 @@ fn slide(degrees: f32, mu: f32) -> f32 {
 /// [`slide`] with the config's friction `mu`, and the cloth's own (`cloth_mu`, as a
 /// garment's material gives it) in its place if given.
 fn slide_cloth(degrees: f32, mu: f32, cloth_mu: Option<f32>) -> f32 {
+    slide_mapped(degrees, mu, cloth_mu, None)
+}
+
+/// [`slide_cloth`] with every particle's own friction (`map`) if given.
+fn slide_mapped(degrees: f32, mu: f32, cloth_mu: Option<f32>, map: Option<f32>) -> f32 {
     let config = SimConfig {
         friction: mu,
         damping: 0.0,
@@ -447,6 +452,9 @@ fn slide_cloth(degrees: f32, mu: f32, cloth_mu: Option<f32>) -> f32 {
     .unwrap();
     if let Some(m) = cloth_mu {
         model.friction = m;
+    }
+    if let Some(m) = map {
+        model.friction_map = vec![m; model.len()];
     }
     let body = BodyCollider::new(&slab_v, &slab.triangles, config.margin);
     let mut solver = Solver::new(&model, &config, start.clone());
@@ -482,6 +490,21 @@ fn the_cloths_own_friction_wins_over_the_configs() {
     assert!(
         (slid - 2.74).abs() < 0.15 * 2.74,
         "with the cloth's mu = 0.1 the patch slid {slid} m"
+    );
+}
+
+#[test]
+fn each_particles_own_friction_wins_over_the_cloths() {
+    // A garment with a band (the jeans' waistband) gives each particle its friction.
+    let stuck = slide_mapped(20.0, 0.1, Some(0.1), Some(0.6));
+    let slid = slide_mapped(20.0, 0.6, Some(0.6), Some(0.1));
+    assert!(
+        stuck < 0.005,
+        "with the particles' mu = 0.6 the patch moved {stuck} m"
+    );
+    assert!(
+        (slid - 2.74).abs() < 0.15 * 2.74,
+        "with the particles' mu = 0.1 the patch slid {slid} m"
     );
 }
 

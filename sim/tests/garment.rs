@@ -494,6 +494,22 @@ fn bad_materials_are_rejected() {
         ("[simulation]\nsubsteps = 0\n", "from 1 to 1000"),
         ("[simulation]\nsubsteps = 1001\n", "from 1 to 1000"),
         ("[simulation]\nsweeps = 3\n", "unknown field"),
+        (
+            "[material]\nbelow_band = { width = 0.08, friction = 0.1 }\n",
+            "needs the band's own `friction`",
+        ),
+        (
+            "[material]\nfriction = 0.8\nbelow_band = { width = 0.0, friction = 0.1 }\n",
+            "width must be over 0",
+        ),
+        (
+            "[material]\nfriction = 0.8\nbelow_band = { width = 0.08, friction = 2.5 }\n",
+            "below_band friction must be from 0 to 2",
+        ),
+        (
+            "[material]\nfriction = 0.8\nbelow_band = { width = 0.08 }\n",
+            "missing field `friction`",
+        ),
     ] {
         let e = garment::GarmentDef::from_toml(&format!("{base}\n{extra}"), "t.toml").unwrap_err();
         assert!(e.contains(want), "{extra}: {e}");
@@ -501,6 +517,25 @@ fn bad_materials_are_rejected() {
     let ok = garment::GarmentDef::from_toml(&format!("{base}\n[material]\nfriction = 0.8\n"), "t")
         .unwrap();
     assert_eq!(ok.friction(), Some(0.8));
+    assert_eq!(ok.below_band(), None);
+    let banded = garment::GarmentDef::from_toml(
+        &format!(
+            "{base}\n[material]\nfriction = 0.8\nbelow_band = {{ width = 0.05, friction = 0.2 }}\n"
+        ),
+        "t",
+    )
+    .unwrap();
+    let band = banded.below_band().unwrap();
+    assert_eq!((band.width, band.friction), (0.05, 0.2));
+    // Within 5 cm of an opening vertex: the band's friction; beyond: the band's below.
+    let v = [
+        glam::Vec3::new(0.0, 1.0, 0.0),
+        glam::Vec3::new(0.0, 0.96, 0.0),
+        glam::Vec3::new(0.02, 0.96, 0.0),
+        glam::Vec3::new(0.0, 0.9, 0.0),
+    ];
+    assert_eq!(band.friction_map(&v, &[0], 0.8), vec![0.8, 0.8, 0.8, 0.2]);
+    assert_eq!(band.friction_map(&v, &[3], 0.8), vec![0.2, 0.2, 0.2, 0.8]);
 }
 
 #[test]
@@ -535,11 +570,39 @@ fn the_jeans_bring_their_own_friction_to_the_simulator() {
     let config = sim::cloth::SimConfig::default();
     for t in built() {
         let mu = t.cloth(&config).unwrap().friction;
+        let cloth = t.cloth(&config).unwrap();
         if t.meta.name == "jeans" {
             assert_eq!(t.meta.friction, Some(0.8));
             assert_eq!(mu, 0.8, "the jeans' cloth");
+            // The waistband grips, the legs slide: 0.8 within 8 cm of the waist opening,
+            // 0.1 below.
+            let band = t.meta.below_band.expect("the jeans' band");
+            assert_eq!((band.width, band.friction), (0.08, 0.1));
+            assert_eq!(cloth.friction_map.len(), t.len());
+            let top = t.top_opening();
+            let y_top = top
+                .iter()
+                .map(|&i| t.mesh.vertices[i as usize].y)
+                .fold(f32::MIN, f32::max);
+            for (i, (p, f)) in t.mesh.vertices.iter().zip(&cloth.friction_map).enumerate() {
+                if top.contains(&(i as u32)) {
+                    assert_eq!(*f, 0.8, "waist vertex {i}");
+                }
+                // The band is no wider than its width: 20 cm below the waist is leg.
+                if p.y < y_top - 0.2 {
+                    assert_eq!(*f, 0.1, "vertex {i}, {} m below the waist", y_top - p.y);
+                }
+            }
+            let gripping = cloth.friction_map.iter().filter(|&&f| f == 0.8).count();
+            let share = gripping as f32 / t.len() as f32;
+            assert!(
+                (0.02..0.15).contains(&share),
+                "band: {share} of the vertices"
+            );
         } else {
             assert_eq!(t.meta.friction, None, "{}", t.meta.name);
+            assert_eq!(t.meta.below_band, None, "{}", t.meta.name);
+            assert!(cloth.friction_map.is_empty(), "{}", t.meta.name);
             assert_eq!(mu, config.friction, "{}'s cloth", t.meta.name);
         }
     }

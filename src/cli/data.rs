@@ -626,7 +626,11 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
             }
             println!("  on disk: {}", mb(i.bytes));
             match m.friction {
-                Some(mu) => println!("  friction garment-body: {mu}"),
+                Some(mu) => println!(
+                    "  friction garment-body: {mu}{}",
+                    m.below_band
+                        .map_or_else(String::new, |b| format!(", {}", b.describe()))
+                ),
                 None => println!(
                     "  friction garment-body: the config's (not recorded: made before garments had their own)"
                 ),

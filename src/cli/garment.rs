@@ -346,6 +346,9 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                     .friction()
                     .map_or_else(String::new, |mu| format!(", friction {mu}"))
                     + &def
+                        .below_band()
+                        .map_or_else(String::new, |b| format!(" ({})", b.describe()))
+                    + &def
                         .substeps()
                         .map_or_else(String::new, |n| format!(", {n} substeps"));
                 println!(
@@ -715,7 +718,7 @@ fn check(
     };
     let friction = t.friction(&config);
     println!(
-        "{name}: {} vertices, {} drapes ({}{}), {}, {}, friction {friction}{}, both cores across drapes",
+        "{name}: {} vertices, {} drapes ({}{}), {}, {}, friction {friction}{}{}, both cores across drapes",
         t.len(),
         cases.len(),
         if corners {
@@ -741,7 +744,10 @@ fn check(
             " (the garment's own)"
         } else {
             ""
-        }
+        },
+        t.meta
+            .below_band
+            .map_or_else(String::new, |b| format!(", {}", b.describe()))
     );
     let bar = indicatif::ProgressBar::new(cases.len() as u64).with_style(
         indicatif::ProgressStyle::with_template(
@@ -920,6 +926,10 @@ fn check(
         "substeps": stepped.substeps,
         "settle_substeps": stepped.settle_substeps,
         "friction": f32_as_written(friction),
+        "below_band": t.meta.below_band.map(|b| serde_json::json!({
+            "width_m": f32_as_written(b.width),
+            "friction": f32_as_written(b.friction),
+        })),
         "converged_share": converged as f64 / n,
         "deepest_mm": f("deepest_mm").into_iter().fold(0.0, f64::max),
         "strain_p95_mean": p95.iter().sum::<f64>() / n,

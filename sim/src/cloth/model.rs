@@ -37,6 +37,9 @@ pub struct ClothModel {
     /// Coulomb friction coefficient between this cloth and the body: the config's, or a
     /// garment's own (`Template::cloth`).
     pub friction: f32,
+    /// Per-particle friction coefficients in place of `friction` (empty: `friction` for
+    /// every particle).
+    pub friction_map: Vec<f32>,
     /// Substeps a frame this cloth needs, at least, while the body moves and while it
     /// settles: a garment's own (`Template::cloth`; `None`: the config's). See
     /// [`ClothModel::drape_config`].
@@ -291,8 +294,15 @@ impl ClothModel {
             dihedral,
             dihedral_colours,
             friction: config.friction,
+            friction_map: Vec::new(),
             substeps: None,
         })
+    }
+
+    /// Coulomb friction coefficient of particle `i` against the body.
+    #[inline]
+    pub fn friction_of(&self, i: usize) -> f32 {
+        self.friction_map.get(i).copied().unwrap_or(self.friction)
     }
 
     /// Number of particles.

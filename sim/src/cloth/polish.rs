@@ -147,7 +147,6 @@ pub fn polish(
             sliders[slot[j]].edges.push((i, rest));
         }
     }
-    let mu = model.friction;
     let x0 = x.to_vec();
     let mut sweeps = 0;
     while sweeps < max_sweeps {
@@ -168,7 +167,7 @@ pub fn polish(
         // The particles at the body, in index order: each moves by the mean of its
         // stretched edges' pulls after Coulomb friction on that net pull.
         for s in &sliders {
-            let m = s.pull(x, &model.inv_mass, mu);
+            let m = s.pull(x, &model.inv_mass, model.friction_of(s.i));
             if m == Vec3::ZERO {
                 continue;
             }

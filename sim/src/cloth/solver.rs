@@ -504,7 +504,7 @@ impl<'m> Solver<'m> {
     /// stage 1.8 times slower and the sweep after it slower too (10k T-shirt; a worker woken
     /// every substep, positions' cache lines moving between cores).
     fn collide(&mut self, tb: f32, te: f32) {
-        let (thickness, mu) = (self.config.thickness, self.model.friction);
+        let thickness = self.config.thickness;
         let elastic = self.config.elastic_pushout;
         for (i, p) in &self.active {
             let i = *i as usize;
@@ -534,7 +534,7 @@ impl<'m> Solver<'m> {
             let tangential = rel - n * rel.dot(n);
             let tl = tangential.length();
             if tl > 0.0 {
-                let limit = mu * push;
+                let limit = self.model.friction_of(i) * push;
                 *x -= if tl <= limit {
                     tangential
                 } else {

@@ -5,7 +5,7 @@
 //! for two parts, stitched along a shared plane. See `configs/garments/tshirt.toml` for a
 //! commented example.
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::body::ShapeParams;
 
@@ -55,6 +55,50 @@ pub struct MaterialDef {
     /// Coulomb friction coefficient between this garment and the body, in place of the
     /// simulator config's `friction` (from 0 to 2).
     pub friction: Option<f32>,
+    /// Where the cloth slides more freely: below a band along the top opening (trousers'
+    /// waistband) the cloth's friction is this band's, in drapes (the template is made and
+    /// graded at `friction`).
+    pub below_band: Option<BelowBand>,
+}
+
+/// The friction of a garment below a band along its top opening: a waistband grips the
+/// body, the legs slide on it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BelowBand {
+    /// Width of the band (m): cloth closer than this to the top opening (straight-line
+    /// distance to its nearest vertex on the template) keeps the garment's `friction`.
+    pub width: f32,
+    /// Coulomb friction coefficient of the cloth beyond the band (from 0 to 2).
+    pub friction: f32,
+}
+
+impl BelowBand {
+    /// For summaries: `0.1 beyond 8 cm of the top opening`.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} beyond {} cm of the top opening",
+            self.friction,
+            (self.width * 1000.0).round() / 10.0
+        )
+    }
+
+    /// Each vertex's friction on a mesh whose top opening is `top`: `band` within
+    /// `width` of one of the opening's vertices, the band's `friction` beyond.
+    pub fn friction_map(&self, vertices: &[glam::Vec3], top: &[u32], band: f32) -> Vec<f32> {
+        let top: Vec<glam::Vec3> = top.iter().map(|&i| vertices[i as usize]).collect();
+        let w2 = self.width * self.width;
+        vertices
+            .iter()
+            .map(|p| {
+                if top.iter().any(|q| q.distance_squared(*p) <= w2) {
+                    band
+                } else {
+                    self.friction
+                }
+            })
+            .collect()
+    }
 }
 
 /// How a garment is graded in sizes, as shops do: each size is the garment made for a
@@ -205,6 +249,12 @@ impl GarmentDef {
         self.material.and_then(|m| m.friction)
     }
 
+    /// The garment's friction below a band along its top opening (`[material]
+    /// below_band`), if it has one.
+    pub fn below_band(&self) -> Option<BelowBand> {
+        self.material.and_then(|m| m.below_band)
+    }
+
     /// Parses and checks a definition; `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, String> {
         let def: GarmentDef = toml::from_str(text).map_err(|e| format!("{origin}: {e}"))?;
@@ -226,6 +276,20 @@ impl GarmentDef {
         }
         if let Some(mu) = def.friction() {
             check_friction(mu).map_err(|e| format!("{origin}: material {e}"))?;
+        }
+        if let Some(b) = def.below_band() {
+            check_friction(b.friction).map_err(|e| format!("{origin}: material below_band {e}"))?;
+            if !(b.width > 0.0 && b.width <= 1.0) {
+                return Err(format!(
+                    "{origin}: material below_band width must be over 0 and at most 1 m (got {})",
+                    b.width
+                ));
+            }
+            if def.friction().is_none() {
+                return Err(format!(
+                    "{origin}: material below_band needs the band's own `friction`"
+                ));
+            }
         }
         if let Some(n) = def.substeps() {
             if !(1..=1000).contains(&n) {

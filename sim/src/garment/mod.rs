@@ -191,6 +191,7 @@ pub fn build_template(
             key,
             size: None,
             friction: def.friction(),
+            below_band: def.below_band(),
             substeps: def.substeps(),
             build: serde_json::json!({
                 "vertices": mesh.vertices.len(),
@@ -692,6 +693,7 @@ pub fn import_mesh(
             key: String::new(),
             size: None,
             friction: None,
+            below_band: None,
             substeps: None,
             build: serde_json::json!({
                 "source": path.display().to_string(),

@@ -50,6 +50,11 @@ pub struct TemplateMeta {
     /// the simulator config's). [`Template::cloth`] cooks it into the cloth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f32>,
+    /// The garment's friction below a band along its top opening (its definition's
+    /// `[material] below_band`; `None`: `friction` everywhere). [`Template::cloth`] cooks it
+    /// into the cloth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub below_band: Option<super::def::BelowBand>,
     /// Substeps a frame the garment needs throughout a drape, at least (its
     /// definition's `[simulation]`; `None`: the simulator config's). [`Template::cloth`]
     /// cooks it into the cloth.
@@ -89,12 +94,16 @@ fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
 
 impl Template {
     /// The template cooked for the simulator with `config`, its fabric's friction
-    /// (`meta.friction`) in place of the config's when the garment has its own, and its
-    /// own substeps (`meta.substeps`), checked against `config`.
+    /// (`meta.friction`) in place of the config's when the garment has its own, below its
+    /// band (`meta.below_band`) if it has one, and its own substeps (`meta.substeps`), checked against `config`.
     pub fn cloth(&self, config: &SimConfig) -> Result<ClothModel, SimError> {
         let mut cloth = ClothModel::new(&self.mesh, config, &[])?;
         cloth.friction = self.friction(config);
         cloth.substeps = self.meta.substeps;
+        if let Some(b) = self.meta.below_band {
+            cloth.friction_map =
+                b.friction_map(&self.mesh.vertices, &self.top_opening(), cloth.friction);
+        }
         cloth
             .drape_config(config)
             .map_err(|reason| SimError::Config {
