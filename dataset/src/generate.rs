@@ -63,8 +63,8 @@ impl Default for GenOptions {
 
 /// What a dataset folder was started with (`config.json`): the resolved config and its
 /// sha256, the garment's own friction, friction below its band and substeps (for a garment
-/// that has them) and the program's
-/// sha256 (absent in folders started before they were recorded).
+/// that has them) and the program's sha256 (absent in folders started before they were
+/// recorded).
 #[derive(Debug, Serialize, Deserialize)]
 struct Stamp {
     config_sha256: String,
@@ -410,7 +410,7 @@ pub fn generate(
         if o.garment_friction != stamp.garment_friction
             || o.garment_below_band != stamp.garment_below_band
         {
-            return Err(refuse("garment material (its own friction)"));
+            return Err(refuse("garment material (its own friction or its band)"));
         }
         if o.garment_substeps != stamp.garment_substeps {
             return Err(refuse("garment's own substeps (its `[simulation]`)"));

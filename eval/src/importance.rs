@@ -8,8 +8,8 @@
 //! ([`learn::model::GarNet::forward_swapped`]). The inputs: the global body feature (the
 //! PointNet stream's max-pooled feature; the shape-and-pose vector of
 //! GarNet-Global-Params), GarNet-Local's local body features of each garment vertex, the
-//! per-vertex body offsets (`model.body_offsets`), and all of them. If Edist hardly rises when an input belongs to another body, the network has
-//! learned little from it; the rise against the drape's own inputs is paired per drape.
+//! per-vertex body offsets (`model.body_offsets`), and all of them. If Edist hardly
+//! rises when an input belongs to another body, the network has learned little from it; the rise against the drape's own inputs is paired per drape.
 
 use std::path::Path;
 

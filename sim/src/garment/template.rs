@@ -95,7 +95,8 @@ fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
 impl Template {
     /// The template cooked for the simulator with `config`, its fabric's friction
     /// (`meta.friction`) in place of the config's when the garment has its own, below its
-    /// band (`meta.below_band`) if it has one, and its own substeps (`meta.substeps`), checked against `config`.
+    /// band (`meta.below_band`) if it has one, and its own substeps (`meta.substeps`),
+    /// checked against `config`.
     pub fn cloth(&self, config: &SimConfig) -> Result<ClothModel, SimError> {
         let mut cloth = ClothModel::new(&self.mesh, config, &[])?;
         cloth.friction = self.friction(config);
