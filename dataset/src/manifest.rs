@@ -234,6 +234,9 @@ impl Manifest {
             // Made before the edge contacts on thin parts (session 25).
             sim.entry("thin_part_thickness")
                 .or_insert(serde_json::Value::from(0.0));
+            // Made before the crease contacts (session 45).
+            sim.entry("crease_contacts")
+                .or_insert(serde_json::Value::from(false));
             for off in ["max_morph_speed", "max_edge_penetration"] {
                 sim.entry(off).or_insert(serde_json::Value::from(1e9));
             }
@@ -338,9 +341,11 @@ mod tests {
         assert_eq!(m.dataset_config().unwrap().sim.max_morph_speed, 0.6);
         assert_eq!(m.dataset_config().unwrap().sim.settle_substeps, 20);
         assert!(!m.dataset_config().unwrap().sim.elastic_pushout);
+        assert!(m.dataset_config().unwrap().sim.crease_contacts);
         // As written by earlier versions: no such fields.
         let sim = m.config["sim"].as_object_mut().unwrap();
         for old in [
+            "crease_contacts",
             "stretch_iterations",
             "max_morph_speed",
             "max_edge_penetration",
@@ -358,6 +363,8 @@ mod tests {
         // It settled at its substeps, with the elastic push-out.
         assert_eq!(back.sim.settle_substeps, config.sim.substeps);
         assert!(back.sim.elastic_pushout);
+        // Every particle with the nearest surface as its only contact.
+        assert!(!back.sim.crease_contacts);
     }
 
     #[test]

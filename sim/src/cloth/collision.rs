@@ -85,6 +85,11 @@ struct PseudoNormals {
     vertex: Vec<Vec3>,
 }
 
+/// How far (m) each surface of a crease must rise above the other's tangent plane at its
+/// closest point ([`BodyCollider::crease`]): a fold, not two faces of one smooth, slightly
+/// concave patch within rounding.
+pub const CREASE_RISE: f32 = 0.0005;
+
 /// A contact: a particle near a body triangle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Contact {
@@ -386,6 +391,18 @@ impl BodyCollider {
     /// margin-inflated boxes come within `radius` of `p`: squared distance, triangle,
     /// barycentrics and feature.
     fn nearest_candidate(&self, p: Vec3, radius: f32) -> Option<(f32, u32, [f32; 3], Feature)> {
+        self.nearest_where(p, radius, |_, _, _| true)
+    }
+
+    /// [`Self::nearest_candidate`] among the triangles that `accept` (triangle, closest
+    /// point, contact) lets through.
+    #[inline]
+    fn nearest_where(
+        &self,
+        p: Vec3,
+        radius: f32,
+        accept: impl Fn(u32, Vec3, &Contact) -> bool,
+    ) -> Option<(f32, u32, [f32; 3], Feature)> {
         let r = Vec3A::splat(radius);
         let query = Aabb::new(to_a(p) - r, to_a(p) + r);
         let mut best: Option<(f32, u32, [f32; 3], Feature)> = None;
@@ -406,7 +423,17 @@ impl BodyCollider {
                     continue;
                 }
                 // Ties (a shared edge or vertex) go to the lower triangle index.
-                if best.is_none_or(|(bd, bf, _, _)| d2 < bd || (d2 == bd && f < bf)) {
+                if best.is_none_or(|(bd, bf, _, _)| d2 < bd || (d2 == bd && f < bf))
+                    && accept(
+                        f,
+                        q,
+                        &Contact {
+                            tri: f,
+                            bary,
+                            feature,
+                        },
+                    )
+                {
                     best = Some((d2, f, bary, feature));
                 }
             }
@@ -422,6 +449,26 @@ impl BodyCollider {
     pub fn contact(&self, p: Vec3, reach: f32) -> Option<Contact> {
         self.nearest_candidate(p, reach)
             .map(|(_, tri, bary, feature)| Contact { tri, bary, feature })
+    }
+
+    /// The other side of a crease at a particle at `p` whose [`Self::contact`] is `first`:
+    /// the nearest candidate triangle (as for `contact`, within `reach`) that rises above
+    /// `first`'s tangent plane while `first` lies above its own, both by more than
+    /// [`CREASE_RISE`]. Where the body folds on itself (a raised thigh against the belly,
+    /// two legs pressed together) the free space is the wedge outside both surfaces, and a
+    /// particle pushed out of one surface alone can land inside the other; on a convex
+    /// part (a finger, a shoulder) every other triangle falls away below the first's
+    /// plane and none is returned, as there a second plane would push the particle off a
+    /// surface it is not near.
+    pub fn crease(&self, p: Vec3, reach: f32, first: &Contact) -> Option<Contact> {
+        let q1 = self.point_at(first, 1.0);
+        let n1 = self.feature_normal(&self.normals_end, first);
+        self.nearest_where(p, reach, |f, q, c| {
+            f != first.tri
+                && (q - q1).dot(n1) > CREASE_RISE
+                && (q1 - q).dot(self.feature_normal(&self.normals_end, c)) > CREASE_RISE
+        })
+        .map(|(_, tri, bary, feature)| Contact { tri, bary, feature })
     }
 
     /// Margin the BVH boxes are inflated by (m).
@@ -625,6 +672,46 @@ mod tests {
         assert!(body.inside(Vec3::new(0.1, -0.2, 0.05)));
         assert!(!body.inside(Vec3::new(0.0, 0.0, 0.7)));
         assert!(!body.inside(Vec3::new(3.0, 1.0, -2.0)));
+    }
+
+    #[test]
+    fn a_crease_is_found_between_two_surfaces_and_not_on_a_convex_part() {
+        // Two spheres 6 mm apart along X: the gap between them is a crease.
+        let mut two = primitives::uv_sphere(Vec3::new(-0.103, 0.0, 0.0), 0.1, 48, 24);
+        let b = primitives::uv_sphere(Vec3::new(0.103, 0.0, 0.0), 0.1, 48, 24);
+        let base = two.vertices.len() as u32;
+        two.vertices.extend(&b.vertices);
+        two.triangles
+            .extend(b.triangles.iter().map(|t| t.map(|i| i + base)));
+        let body = BodyCollider::new(&two.vertices, &two.triangles, 0.01);
+        // In the gap, a little nearer the left sphere: its contact on the left sphere's
+        // right side, the crease's other side on the right sphere's left side.
+        let p = Vec3::new(-0.001, 0.004, 0.0);
+        let first = body.contact(p, 0.01).unwrap();
+        assert!(body.normal_at(&first, 1.0).x > 0.9);
+        let other = body
+            .crease(p, 0.01, &first)
+            .expect("a crease between the spheres");
+        let n = body.normal_at(&other, 1.0);
+        assert!(n.x < -0.9, "{n}");
+        assert!((body.point_at(&other, 1.0).x - 0.003).abs() < 0.001);
+        // Over the outer side of a sphere, and over a box's edge and corner: none.
+        let far = Vec3::new(-0.205, 0.0, 0.0);
+        assert!(
+            body.crease(far, 0.01, &body.contact(far, 0.01).unwrap())
+                .is_none()
+        );
+        let cube = primitives::cuboid(Vec3::ZERO, Vec3::splat(0.1), 6);
+        let body = BodyCollider::new(&cube.vertices, &cube.triangles, 0.01);
+        for p in [
+            Vec3::new(0.09, 0.103, 0.0),
+            Vec3::new(0.102, 0.102, 0.0),
+            Vec3::new(0.102, 0.102, 0.102),
+            Vec3::new(0.0, 0.103, 0.0),
+        ] {
+            let first = body.contact(p, 0.01).unwrap();
+            assert!(body.crease(p, 0.01, &first).is_none(), "{p}");
+        }
     }
 
     #[test]

@@ -82,6 +82,14 @@ pub struct SimConfig {
     /// reads as 0.
     #[serde(skip_serializing_if = "is_zero_f32")]
     pub thin_part_thickness: f32,
+    /// A particle in a fold of the body (a raised thigh against the belly) also keeps the
+    /// fold's other side as a contact, so a push out of one surface cannot land it inside
+    /// the other (default true; `BodyCollider::crease`, docs/sim.md "Creases"). Without it
+    /// such particles were pushed back and forth between the two surfaces and the drape
+    /// never came to rest. Left out of the serialised config when false, so configs from
+    /// before the field keep their hashes; a manifest without it reads as false.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub crease_contacts: bool,
     /// Gravity (m/s^2, default (0, -9.81, 0)).
     pub gravity: [f32; 3],
     /// Velocity damping (1/s, default 2): velocities decay as exp(-damping t).
@@ -152,6 +160,7 @@ impl Default for SimConfig {
             elastic_pushout: false,
             polish_sweeps: 100,
             thin_part_thickness: 0.03,
+            crease_contacts: true,
             gravity: [0.0, -9.81, 0.0],
             damping: 2.0,
             max_velocity: 5.0,

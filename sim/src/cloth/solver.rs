@@ -39,7 +39,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::SimConfig;
-use super::collision::BodyCollider;
+use super::collision::{BodyCollider, Contact};
 use super::constraints::dihedral;
 use super::constraints::distance::{Halves, Kind, Prepared, SplitSweep};
 use super::model::ClothModel;
@@ -60,6 +60,9 @@ struct Plane {
 struct ContactState {
     /// Its contact this frame, if any.
     plane: Option<Plane>,
+    /// The other side of a crease it sits in, if any ([`BodyCollider::crease`]; particles
+    /// only, not edges' midpoints).
+    crease: Option<Plane>,
     /// Where and with which radius it last searched (NaN before the first search, so the
     /// first frame always searches).
     searched: (Vec3, f32),
@@ -69,6 +72,7 @@ impl Default for ContactState {
     fn default() -> Self {
         Self {
             plane: None,
+            crease: None,
             searched: (Vec3::ZERO, f32::NAN),
         }
     }
@@ -253,11 +257,12 @@ impl<'m> Solver<'m> {
         // particle has moved less than half the margin.
         let still = body.travel() == 0.0;
         let (x, v, thickness) = (&self.x, &self.v, c.thickness);
+        let creases = c.crease_contacts;
         let detect = |(i, state): (usize, &mut ContactState)| {
             let travel = v[i].length() * frame_dt;
             detect_one(
                 body,
-                None,
+                Target::Particle { creases },
                 state,
                 Vec3::from(x[i]),
                 travel,
@@ -272,11 +277,18 @@ impl<'m> Solver<'m> {
         }
         self.active.clear();
         let w = &self.model.inv_mass;
+        // A particle in a crease: its contact, then the crease's other side.
         self.active.extend(
             self.contacts
                 .iter()
                 .enumerate()
-                .filter_map(|(i, st)| st.plane.filter(|_| w[i] != 0.0).map(|p| (i as u32, p))),
+                .filter(|(i, _)| w[*i] != 0.0)
+                .flat_map(|(i, st)| {
+                    st.plane
+                        .into_iter()
+                        .chain(st.crease)
+                        .map(move |p| (i as u32, p))
+                }),
         );
         // The edges' midpoints against the thin parts.
         self.edge_active.clear();
@@ -312,7 +324,15 @@ impl<'m> Solver<'m> {
                 let travel = v[a].length().max(v[b].length()) * frame_dt;
                 let here = Vec3::from(0.5 * (x[a] + x[b]));
                 let state = &mut self.edge_contacts[e as usize];
-                detect_one(body, Some(thin), state, here, travel, thickness, still);
+                detect_one(
+                    body,
+                    Target::Edge(thin),
+                    state,
+                    here,
+                    travel,
+                    thickness,
+                    still,
+                );
             }
             self.edge_active.extend(candidates.iter().filter_map(|&e| {
                 let [a, b] = edges[e as usize];
@@ -500,6 +520,10 @@ impl<'m> Solver<'m> {
     /// came to rest at 20 substeps (session 16: the tube on `random:11`, the jeans on
     /// sample 42).
     ///
+    /// A particle in a crease of the body has two planes in the list, its contact's and
+    /// the crease's other side's (`SimConfig::crease_contacts`), pushed out of one then
+    /// the other in every substep.
+    ///
     /// On one thread: splitting the contact list in two halves for the two cores made this
     /// stage 1.8 times slower and the sweep after it slower too (10k T-shirt; a worker woken
     /// every substep, positions' cache lines moving between cores).
@@ -573,16 +597,25 @@ impl<'m> Solver<'m> {
     }
 }
 
-/// Contact detection for one point (a particle or an edge's midpoint) that moves by up to
-/// `travel` this frame: the nearest triangle of `body` within `thickness + travel` of it,
-/// or the state's last search kept while the body stands still (`still`) and the point
-/// stays inside that search's slack (all that is within its reach now was within the
-/// radius searched then) or, for a contact, has moved less than half the margin. With
-/// `thin`, only a nearest triangle that is thin counts (an edge's midpoint; the caller
-/// passes only midpoints near a group of thin parts).
+/// What [`detect_one`] searches for.
+#[derive(Clone, Copy)]
+enum Target<'t> {
+    /// A particle: its nearest triangle and, with `creases`, the other side of a crease
+    /// it sits in ([`BodyCollider::crease`]).
+    Particle { creases: bool },
+    /// An edge's midpoint near a group of the thin parts: only a nearest triangle that is
+    /// thin counts.
+    Edge(&'t ThinParts),
+}
+
+/// Contact detection for one point (a particle or an edge's midpoint, `target`) that moves
+/// by up to `travel` this frame: the nearest triangle of `body` within `thickness + travel`
+/// of it, or the state's last search kept while the body stands still (`still`) and the
+/// point stays inside that search's slack (all that is within its reach now was within the
+/// radius searched then) or, for a contact, has moved less than half the margin.
 fn detect_one(
     body: &BodyCollider,
-    thin: Option<&ThinParts>,
+    target: Target<'_>,
     state: &mut ContactState,
     here: Vec3,
     travel: f32,
@@ -600,7 +633,7 @@ fn detect_one(
         // not replay that motion in every frame of a still body (it kicked resting
         // particles off the body at each frame's start, and they bounced at half the
         // frame rate: the drapes that never came to rest).
-        if let Some(p) = &mut state.plane {
+        for p in state.plane.iter_mut().chain(&mut state.crease) {
             p.q0 = p.q1;
             p.n0 = p.n1;
         }
@@ -608,13 +641,21 @@ fn detect_one(
     }
     let radius = thickness + travel;
     let found = body.contact(here, radius);
-    let contact = found.filter(|c| thin.is_none_or(|t| t.is_thin(c.tri)));
-    state.plane = contact.map(|c| Plane {
+    let contact = match target {
+        Target::Edge(thin) => found.filter(|c| thin.is_thin(c.tri)),
+        Target::Particle { .. } => found,
+    };
+    let plane = |c: Contact| Plane {
         q0: body.point_at(&c, 0.0).into(),
         q1: body.point_at(&c, 1.0).into(),
         n0: body.normal_at(&c, 0.0).into(),
         n1: body.normal_at(&c, 1.0).into(),
-    });
+    };
+    state.plane = contact.map(plane);
+    state.crease = contact
+        .filter(|_| matches!(target, Target::Particle { creases: true }))
+        .and_then(|c| body.crease(here, radius, &c))
+        .map(plane);
     // A contact turned down because its triangle is not thin says nothing about the thin
     // triangles a little farther away: that search is not reused.
     let reusable = found.is_none() || contact.is_some();
