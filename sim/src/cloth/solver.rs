@@ -640,7 +640,10 @@ fn detect_one(
         return;
     }
     let radius = thickness + travel;
-    let found = body.contact(here, radius);
+    let (found, crease) = match target {
+        Target::Particle { creases: true } => body.contact_and_crease(here, radius),
+        _ => (body.contact(here, radius), None),
+    };
     let contact = match target {
         Target::Edge(thin) => found.filter(|c| thin.is_thin(c.tri)),
         Target::Particle { .. } => found,
@@ -652,10 +655,7 @@ fn detect_one(
         n1: body.normal_at(&c, 1.0).into(),
     };
     state.plane = contact.map(plane);
-    state.crease = contact
-        .filter(|_| matches!(target, Target::Particle { creases: true }))
-        .and_then(|c| body.crease(here, radius, &c))
-        .map(plane);
+    state.crease = crease.map(plane);
     // A contact turned down because its triangle is not thin says nothing about the thin
     // triangles a little farther away: that search is not reused.
     let reusable = found.is_none() || contact.is_some();
