@@ -90,6 +90,11 @@ struct PseudoNormals {
 /// concave patch within rounding.
 pub const CREASE_RISE: f32 = 0.0005;
 
+/// The two sides of a crease face at least 60 degrees apart: the cosine between their
+/// normals is below this ([`BodyCollider::crease`]). Nearly parallel surfaces one above
+/// the other (the back of a hand and its knuckles) are a step, not a fold.
+pub const CREASE_MAX_COS: f32 = 0.5;
+
 /// A contact: a particle near a body triangle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Contact {
@@ -466,10 +471,11 @@ impl BodyCollider {
     }
 
     /// The other side of a crease at a particle at `p` whose [`Self::contact`] is `first`:
-    /// the nearest candidate triangle (as for `contact`, within `reach`) that rises above
-    /// `first`'s tangent plane while `first` lies above its own, both by more than
-    /// [`CREASE_RISE`], and that has `p` on its outer side. Where the body folds on itself (a raised thigh against the belly,
-    /// two legs pressed together) the free space is the wedge outside both surfaces, and a
+    /// the nearest candidate triangle (as for `contact`, within `reach`) that faces at
+    /// least 60 degrees away from `first` ([`CREASE_MAX_COS`]), rises above `first`'s
+    /// tangent plane while `first` lies above its own, both by more than [`CREASE_RISE`],
+    /// and has `p` on its outer side. Where the body folds on itself (a raised thigh
+    /// against the belly, two legs pressed together) the free space is the wedge outside both surfaces, and a
     /// particle pushed out of one surface alone can land inside the other; on a convex
     /// part (a finger, a shoulder) every other triangle falls away below the first's
     /// plane and none is returned, as there a second plane would push the particle off a
@@ -493,7 +499,7 @@ impl BodyCollider {
                 return false;
             }
             let n = self.feature_normal(&self.normals_end, c);
-            (q1 - q).dot(n) > CREASE_RISE && (p - q).dot(n) >= 0.0
+            n.dot(n1) < CREASE_MAX_COS && (q1 - q).dot(n) > CREASE_RISE && (p - q).dot(n) >= 0.0
         }
     }
 

@@ -262,7 +262,7 @@ impl<'m> Solver<'m> {
             let travel = v[i].length() * frame_dt;
             detect_one(
                 body,
-                Target::Particle { creases },
+                Target::Particle { creases, thin },
                 state,
                 Vec3::from(x[i]),
                 travel,
@@ -601,8 +601,13 @@ impl<'m> Solver<'m> {
 #[derive(Clone, Copy)]
 enum Target<'t> {
     /// A particle: its nearest triangle and, with `creases`, the other side of a crease
-    /// it sits in ([`BodyCollider::crease`]).
-    Particle { creases: bool },
+    /// it sits in ([`BodyCollider::crease`]), unless either side is one of the `thin`
+    /// parts: the small, sharply curved features of hands and feet are no fold a cuff or
+    /// a hem rests in (docs/sim.md, "Creases").
+    Particle {
+        creases: bool,
+        thin: Option<&'t ThinParts>,
+    },
     /// An edge's midpoint near a group of the thin parts: only a nearest triangle that is
     /// thin counts.
     Edge(&'t ThinParts),
@@ -641,7 +646,15 @@ fn detect_one(
     }
     let radius = thickness + travel;
     let (found, crease) = match target {
-        Target::Particle { creases: true } => body.contact_and_crease(here, radius),
+        Target::Particle {
+            creases: true,
+            thin,
+        } => {
+            let (found, crease) = body.contact_and_crease(here, radius);
+            let thin_side = |c: &Contact| thin.is_some_and(|t| t.is_thin(c.tri));
+            let crease = crease.filter(|c| !thin_side(c) && !found.as_ref().is_some_and(thin_side));
+            (found, crease)
+        }
         _ => (body.contact(here, radius), None),
     };
     let contact = match target {
