@@ -331,7 +331,8 @@ mod tests {
     fn a_manifest_from_before_stretch_iterations_reads_as_one_sweep() {
         let config = DatasetConfig::from_toml(
             "name = \"t\"\ngarment = \"tshirt\"\nresolution = 3000\nseed = 1\nposes_per_body = 1\n\
-             [bodies]\ntrain = 1\nval = 1\ntest = 1\n[sim]\nstretch_iterations = 3\n",
+             [bodies]\ntrain = 1\nval = 1\ntest = 1\n[sim]\nstretch_iterations = 3\n\
+             crease_contacts = true\n",
             std::path::Path::new("t.toml"),
         )
         .unwrap();
