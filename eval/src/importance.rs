@@ -9,7 +9,8 @@
 //! PointNet stream's max-pooled feature; the shape-and-pose vector of
 //! GarNet-Global-Params), GarNet-Local's local body features of each garment vertex, the
 //! per-vertex body offsets (`model.body_offsets`), and all of them. If Edist hardly
-//! rises when an input belongs to another body, the network has learned little from it; the rise against the drape's own inputs is paired per drape.
+//! rises when an input belongs to another body, the network has learned little from it;
+//! the rise against the drape's own inputs is paired per drape.
 
 use std::path::Path;
 

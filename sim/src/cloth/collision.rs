@@ -95,6 +95,14 @@ pub const CREASE_RISE: f32 = 0.0005;
 /// the other (the back of a hand and its knuckles) are a step, not a fold.
 pub const CREASE_MAX_COS: f32 = 0.5;
 
+/// Whether a candidate at squared distance `d2` on triangle `f` is nearer than `best`
+/// (squared distance, triangle): ties (a shared edge or vertex) go to the lower triangle
+/// index, so the answer does not depend on the order of the search.
+#[inline]
+fn nearer(d2: f32, f: u32, best: Option<(f32, u32)>) -> bool {
+    best.is_none_or(|(bd, bf)| d2 < bd || (d2 == bd && f < bf))
+}
+
 /// A contact: a particle near a body triangle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Contact {
@@ -443,8 +451,7 @@ impl BodyCollider {
     ) -> Option<(f32, u32, [f32; 3], Feature)> {
         let mut best: Option<(f32, u32, [f32; 3], Feature)> = None;
         self.candidates(p, radius, |d2, f, bary, feature, q| {
-            // Ties (a shared edge or vertex) go to the lower triangle index.
-            if best.is_none_or(|(bd, bf, _, _)| d2 < bd || (d2 == bd && f < bf))
+            if nearer(d2, f, best.map(|b| (b.0, b.1)))
                 && accept(
                     f,
                     q,
@@ -475,11 +482,11 @@ impl BodyCollider {
     /// least 60 degrees away from `first` ([`CREASE_MAX_COS`]), rises above `first`'s
     /// tangent plane while `first` lies above its own, both by more than [`CREASE_RISE`],
     /// and has `p` on its outer side. Where the body folds on itself (a raised thigh
-    /// against the belly, two legs pressed together) the free space is the wedge outside both surfaces, and a
-    /// particle pushed out of one surface alone can land inside the other; on a convex
-    /// part (a finger, a shoulder) every other triangle falls away below the first's
-    /// plane and none is returned, as there a second plane would push the particle off a
-    /// surface it is not near. A particle behind the other side's plane is not in the
+    /// against the belly, two legs pressed together) the free space is the wedge outside
+    /// both surfaces, and a particle pushed out of one surface alone can land inside the
+    /// other; on a convex part (a finger, a shoulder) every other triangle falls away
+    /// below the first's plane and none is returned, as there a second plane would push
+    /// the particle off a surface it is not near. A particle behind the other side's plane is not in the
     /// fold's free space (the body may intersect itself there, a forearm sunk into the hip)
     /// and gets none: that plane would carry it through the body.
     pub fn crease(&self, p: Vec3, reach: f32, first: &Contact) -> Option<Contact> {
@@ -514,7 +521,7 @@ impl BodyCollider {
         let (mut n, mut overflow) = (0usize, false);
         let mut best: Option<(f32, u32, [f32; 3], Feature)> = None;
         self.candidates(p, reach, |d2, f, bary, feature, q| {
-            if best.is_none_or(|(bd, bf, _, _)| d2 < bd || (d2 == bd && f < bf)) {
+            if nearer(d2, f, best.map(|b| (b.0, b.1))) {
                 best = Some((d2, f, bary, feature));
             }
             if n < KEPT {
@@ -534,7 +541,7 @@ impl BodyCollider {
         let is_other_side = self.other_side(p, &first);
         let mut other: Option<(f32, u32, [f32; 3], Feature)> = None;
         for &(d2, f, bary, feature, q) in &kept[..n] {
-            if other.is_none_or(|(bd, bf, _, _)| d2 < bd || (d2 == bd && f < bf))
+            if nearer(d2, f, other.map(|b| (b.0, b.1)))
                 && is_other_side(
                     f,
                     q,

@@ -645,7 +645,17 @@ fn detect_one(
         return;
     }
     let radius = thickness + travel;
-    let (found, crease) = match target {
+    // `found`: the nearest triangle; `contact`: the one kept (an edge keeps only a thin
+    // one); `crease`: a particle's fold's other side, unless either side is thin.
+    let (found, contact, crease) = match target {
+        Target::Edge(thin) => {
+            let found = body.contact(here, radius);
+            (found, found.filter(|c| thin.is_thin(c.tri)), None)
+        }
+        Target::Particle { creases: false, .. } => {
+            let found = body.contact(here, radius);
+            (found, found, None)
+        }
         Target::Particle {
             creases: true,
             thin,
@@ -653,13 +663,8 @@ fn detect_one(
             let (found, crease) = body.contact_and_crease(here, radius);
             let thin_side = |c: &Contact| thin.is_some_and(|t| t.is_thin(c.tri));
             let crease = crease.filter(|c| !thin_side(c) && !found.as_ref().is_some_and(thin_side));
-            (found, crease)
+            (found, found, crease)
         }
-        _ => (body.contact(here, radius), None),
-    };
-    let contact = match target {
-        Target::Edge(thin) => found.filter(|c| thin.is_thin(c.tri)),
-        Target::Particle { .. } => found,
     };
     let plane = |c: Contact| Plane {
         q0: body.point_at(&c, 0.0).into(),
