@@ -99,9 +99,11 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
             .iter()
             .all(|b| !bodies(Split::Train).contains(b))
     );
-    // The T-shirt has no friction or substeps of its own: it drapes with the config's.
+    // The T-shirt has no friction, substeps or crease contacts of its own: it drapes with
+    // the config's.
     assert_eq!(m.friction, Some(c.sim.friction));
     assert_eq!(m.garment_substeps, None);
+    assert!(!m.garment_crease_contacts);
     let (ok, text) = run(drape().args(["data", "info"]).arg(dir));
     assert!(ok, "{text}");
     assert!(text.contains("test pose to nearest train"), "{text}");
@@ -379,7 +381,8 @@ fn drapes_of_another_template_material_or_build_are_not_resumed() {
         bytes,
         "the folder was left as it was"
     );
-    // A folder started with the garment at another friction, or other substeps, of its own:
+    // A folder started with the garment at another friction, or other substeps or crease
+    // contacts, of its own:
     // its stamp says so.
     let restamped = |name: &str, key: &str, value: serde_json::Value| {
         let copy = reference_copy(t.path(), name);
@@ -394,6 +397,12 @@ fn drapes_of_another_template_material_or_build_are_not_resumed() {
     assert!(!ok && text.contains("another garment material"), "{text}");
     let (ok, text) = restamped("substeps", "garment_substeps", serde_json::json!(20));
     assert!(!ok && text.contains("own substeps"), "{text}");
+    let (ok, text) = restamped(
+        "creases",
+        "garment_crease_contacts",
+        serde_json::json!(true),
+    );
+    assert!(!ok && text.contains("own crease contacts"), "{text}");
     // Drapes of another build: refused, unless asked for; the manifest then names no
     // program.
     let copy = reference_copy(t.path(), "build");

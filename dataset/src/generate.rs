@@ -62,8 +62,8 @@ impl Default for GenOptions {
 }
 
 /// What a dataset folder was started with (`config.json`): the resolved config and its
-/// sha256, the garment's own friction, friction below its band and substeps (for a garment
-/// that has them) and the program's sha256 (absent in folders started before they were
+/// sha256, the garment's own friction, friction below its band, substeps and crease contacts
+/// (for a garment that has them) and the program's sha256 (absent in folders started before they were
 /// recorded).
 #[derive(Debug, Serialize, Deserialize)]
 struct Stamp {
@@ -75,6 +75,8 @@ struct Stamp {
     garment_substeps: Option<u32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     garment_below_band: Option<sim::garment::def::BelowBand>,
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    garment_crease_contacts: bool,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     program_sha256: Option<String>,
 }
@@ -382,6 +384,7 @@ pub fn generate(
         garment_friction: None,
         garment_substeps: None,
         garment_below_band: None,
+        garment_crease_contacts: false,
         program_sha256: crate::manifest::program_sha256(),
     };
     // The stored config compared as read back from text: serde_json's parser does not
@@ -402,6 +405,7 @@ pub fn generate(
         garment_friction: template.meta.friction,
         garment_substeps: template.meta.substeps,
         garment_below_band: template.meta.below_band,
+        garment_crease_contacts: template.meta.crease_contacts,
         ..stamp
     };
     // Whether the drapes of this folder all come from this program.
@@ -414,6 +418,9 @@ pub fn generate(
         }
         if o.garment_substeps != stamp.garment_substeps {
             return Err(refuse("garment's own substeps (its `[simulation]`)"));
+        }
+        if o.garment_crease_contacts != stamp.garment_crease_contacts {
+            return Err(refuse("garment's own crease contacts (its `[simulation]`)"));
         }
         if o.program_sha256 != stamp.program_sha256 && holds_drapes(dir) {
             if o.program_sha256.is_some() && !opts.mixed_builds {
@@ -544,6 +551,7 @@ pub fn generate(
     manifest.friction = Some(wardrobe.friction());
     manifest.below_band = wardrobe.below_band();
     manifest.garment_substeps = wardrobe.substeps();
+    manifest.garment_crease_contacts = wardrobe.crease_contacts();
     manifest.program_sha256 = stamp.program_sha256.clone().filter(|_| one_build);
     let manifest_path = dir.join(manifest_name(opts));
     write_atomic(

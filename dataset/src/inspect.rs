@@ -279,6 +279,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifes
             || m.size_templates != first.size_templates
             || friction(m)? != friction(first)?
             || m.garment_substeps != first.garment_substeps
+            || m.garment_crease_contacts != first.garment_crease_contacts
             || m.below_band != first.below_band
         {
             return Err(DatasetError::Invalid(format!(

@@ -115,6 +115,11 @@ pub struct Manifest {
     /// `[simulation]`), absent when they ran at the simulator config's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub garment_substeps: Option<u32>,
+    /// Whether the garment's own `[simulation] crease_contacts` was on (it counts where the
+    /// simulator config leaves them unset); absent when off, and in manifests written
+    /// before it existed (session 46), when no garment had it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub garment_crease_contacts: bool,
     /// sha256 of the program that draped (`drape`'s executable; absent in manifests
     /// written before it was recorded). Two builds of the same source drape differently
     /// (by up to 15 mm: docs/datasets.md), so `drape data merge` joins only parts of one.
@@ -199,6 +204,7 @@ impl Manifest {
             friction: None,
             below_band: None,
             garment_substeps: None,
+            garment_crease_contacts: false,
             program_sha256: None,
             shards,
         }
@@ -234,9 +240,6 @@ impl Manifest {
             // Made before the edge contacts on thin parts (session 25).
             sim.entry("thin_part_thickness")
                 .or_insert(serde_json::Value::from(0.0));
-            // Made before the crease contacts (session 45).
-            sim.entry("crease_contacts")
-                .or_insert(serde_json::Value::from(false));
             for off in ["max_morph_speed", "max_edge_penetration"] {
                 sim.entry(off).or_insert(serde_json::Value::from(1e9));
             }
@@ -342,7 +345,7 @@ mod tests {
         assert_eq!(m.dataset_config().unwrap().sim.max_morph_speed, 0.6);
         assert_eq!(m.dataset_config().unwrap().sim.settle_substeps, 20);
         assert!(!m.dataset_config().unwrap().sim.elastic_pushout);
-        assert!(m.dataset_config().unwrap().sim.crease_contacts);
+        assert_eq!(m.dataset_config().unwrap().sim.crease_contacts, Some(true));
         // As written by earlier versions: no such fields.
         let sim = m.config["sim"].as_object_mut().unwrap();
         for old in [
@@ -364,8 +367,10 @@ mod tests {
         // It settled at its substeps, with the elastic push-out.
         assert_eq!(back.sim.settle_substeps, config.sim.substeps);
         assert!(back.sim.elastic_pushout);
-        // Every particle with the nearest surface as its only contact.
-        assert!(!back.sim.crease_contacts);
+        // Crease contacts unset: each garment's own, and no garment had them before the
+        // field (the manifest's `garment_crease_contacts` reads false).
+        assert_eq!(back.sim.crease_contacts, None);
+        assert!(!m.garment_crease_contacts);
     }
 
     #[test]

@@ -126,6 +126,12 @@ impl Wardrobe {
         self.base_cloth.substeps
     }
 
+    /// Whether the garment takes crease contacts when the simulator config leaves them
+    /// unset (its definition's `[simulation]`), shared by every size.
+    pub fn crease_contacts(&self) -> bool {
+        self.base_cloth.crease_contacts
+    }
+
     /// Each size's sha256 of its template's vertex positions (f32 little-endian; empty
     /// without sizes): what the manifest records and a redrape checks.
     pub fn size_fingerprints(&self) -> BTreeMap<String, String> {

@@ -300,6 +300,24 @@ impl<'w> Redraper<'w> {
                 wardrobe.substeps()
             )));
         }
+        // And its own crease contacts (off in a manifest written before they existed).
+        if data.manifest.garment_crease_contacts != wardrobe.crease_contacts() {
+            return Err(EvalError::Invalid(format!(
+                "{} was draped with the {}'s own crease contacts {}; they are {} here (the garment's `[simulation]` changed): regenerate the dataset",
+                data.dir.display(),
+                config.garment,
+                if data.manifest.garment_crease_contacts {
+                    "on"
+                } else {
+                    "off"
+                },
+                if wardrobe.crease_contacts() {
+                    "on"
+                } else {
+                    "off"
+                },
+            )));
+        }
         let sizes = data
             .manifest
             .samples()

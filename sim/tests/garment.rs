@@ -529,26 +529,43 @@ fn bad_materials_are_rejected() {
     assert_eq!((band.width, band.friction), (0.05, 0.2));
     // Within 5 cm of an opening vertex: the band's friction; beyond: the band's below.
     let v = [
-        glam::Vec3::new(0.0, 1.0, 0.0),
-        glam::Vec3::new(0.0, 0.96, 0.0),
-        glam::Vec3::new(0.02, 0.96, 0.0),
-        glam::Vec3::new(0.0, 0.9, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 0.96, 0.0),
+        Vec3::new(0.02, 0.96, 0.0),
+        Vec3::new(0.0, 0.9, 0.0),
     ];
     assert_eq!(band.friction_map(&v, &[0], 0.8), vec![0.8, 0.8, 0.8, 0.2]);
     assert_eq!(band.friction_map(&v, &[3], 0.8), vec![0.2, 0.2, 0.2, 0.8]);
 }
 
 #[test]
-fn the_jeans_bring_their_own_substeps_to_the_simulator() {
-    // The jeans drape at 30 substeps throughout (their `[simulation]`), the tops at the
-    // config's; a config whose shear-and-bend rate cannot divide the jeans' 30 is refused.
+fn the_jeans_bring_their_own_substeps_and_crease_contacts_to_the_simulator() {
+    // The jeans drape at 30 substeps throughout and with crease contacts (their
+    // `[simulation]`), the tops at the config's substeps and without; a config whose
+    // shear-and-bend rate cannot divide the jeans' 30 is refused, and a config that sets
+    // crease contacts sets them for every garment.
     let config = sim::cloth::SimConfig::default();
+    assert_eq!(config.crease_contacts, None);
     for t in built() {
         let cloth = t.cloth(&config).unwrap();
         let c = cloth.drape_config(&config).unwrap();
+        for set in [false, true] {
+            let forced = sim::cloth::SimConfig {
+                crease_contacts: Some(set),
+                ..Default::default()
+            };
+            let c = t.cloth(&forced).unwrap().drape_config(&forced).unwrap();
+            assert_eq!(c.crease_contacts, Some(set), "{}", t.meta.name);
+        }
         if t.meta.name == "jeans" {
             assert_eq!(t.meta.substeps, Some(30));
+            assert!(t.meta.crease_contacts);
             assert_eq!((c.substeps, c.settle_substeps), (30, 30));
+            assert_eq!(c.crease_contacts, Some(true));
+            assert!(
+                t.stepping(&config)
+                    .contains("the garment's own crease contacts")
+            );
             let odd = sim::cloth::SimConfig {
                 substeps: 8,
                 settle_substeps: 8,
@@ -560,7 +577,13 @@ fn the_jeans_bring_their_own_substeps_to_the_simulator() {
             assert!(e.contains("own 30 substeps"), "{e}");
         } else {
             assert_eq!(t.meta.substeps, None, "{}", t.meta.name);
-            assert_eq!(c, config, "{}", t.meta.name);
+            assert!(!t.meta.crease_contacts, "{}", t.meta.name);
+            let off = sim::cloth::SimConfig {
+                crease_contacts: Some(false),
+                ..config.clone()
+            };
+            assert_eq!(c, off, "{}", t.meta.name);
+            assert!(!t.stepping(&config).contains("crease"), "{}", t.meta.name);
         }
     }
 }

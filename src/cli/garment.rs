@@ -53,8 +53,8 @@ enum GarmentCommand {
         #[arg(long, value_name = "MU")]
         friction: Option<f32>,
     },
-    /// List the garments: built-in ones (their sizes, own friction and substeps, and which resolutions are
-    /// cached) and imported ones (own friction).
+    /// List the garments: built-in ones (their sizes, own friction, substeps and crease
+    /// contacts, and which resolutions are cached) and imported ones (own friction).
     List,
     /// Render a garment: the canonical body, the template on it and alone; then one row per
     /// sampled body and pose: the posed body, the DQS warp on it and the simulated drape;
@@ -350,7 +350,12 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                         .map_or_else(String::new, |b| format!(" ({})", b.describe()))
                     + &def
                         .substeps()
-                        .map_or_else(String::new, |n| format!(", {n} substeps"));
+                        .map_or_else(String::new, |n| format!(", {n} substeps"))
+                    + if def.crease_contacts() {
+                        ", crease contacts"
+                    } else {
+                        ""
+                    };
                 println!(
                     "{name:8} built-in  {} [{graded}{friction}]{}",
                     def.description,
@@ -700,7 +705,8 @@ fn check(
         }
     }
     let t = wardrobe.loaded(&base);
-    // The config the drapes run with: the garment's own substeps raise the config's.
+    // The config the drapes run with: the garment's own substeps raise the config's, its
+    // own crease contacts count where the config leaves them unset.
     let stepped = t
         .cloth(&config)?
         .drape_config(&config)
@@ -925,6 +931,7 @@ fn check(
         "start": if mode == CheckMode::FromWarp { "dqs_warp" } else { "morph" },
         "substeps": stepped.substeps,
         "settle_substeps": stepped.settle_substeps,
+        "crease_contacts": stepped.crease_contacts == Some(true),
         "friction": f32_as_written(friction),
         "below_band": t.meta.below_band.map(|b| serde_json::json!({
             "width_m": f32_as_written(b.width),

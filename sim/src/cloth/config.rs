@@ -84,15 +84,17 @@ pub struct SimConfig {
     pub thin_part_thickness: f32,
     /// A particle in a fold of the body (a raised thigh against the belly) also keeps the
     /// fold's other side as a contact, so a push out of one surface cannot land it inside
-    /// the other (default false; `BodyCollider::crease`, docs/sim.md "Creases"). Without it
-    /// such particles can be pushed back and forth between the two surfaces (the 3k jeans
-    /// on check sample 15 never came to rest). Off by default: on 50 sampled drapes it
-    /// took the 3k jeans from 48 to 49 converged and the 3k sweater from 50 to 48 (cuffs
-    /// caught on the hands in two drapes it changed). Left out of the serialised config
-    /// when false, so configs keep the hashes they had before the field; a manifest
-    /// without it reads as false.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
-    pub crease_contacts: bool,
+    /// the other (`BodyCollider::crease`, docs/sim.md "Creases"). Without it such particles
+    /// can be pushed back and forth between the two surfaces (the 3k jeans on check sample
+    /// 15 never came to rest). Unset (the default): each garment's own choice, its
+    /// definition's `[simulation] crease_contacts` (the jeans: on; the others: off; a plain
+    /// mesh: off; [`ClothModel::drape_config`](super::ClothModel::drape_config) resolves it).
+    /// `true` or `false` sets it for every garment. Not on for every garment: on 50 sampled
+    /// drapes it took the 3k jeans from 48 to 49 converged but the 3k sweater from 50 to 48
+    /// (cuffs caught on the hands in two drapes it changed). Left out of the serialised
+    /// config when unset, so configs keep the hashes they had before the field.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub crease_contacts: Option<bool>,
     /// Gravity (m/s^2, default (0, -9.81, 0)).
     pub gravity: [f32; 3],
     /// Velocity damping (1/s, default 2): velocities decay as exp(-damping t).
@@ -163,7 +165,7 @@ impl Default for SimConfig {
             elastic_pushout: false,
             polish_sweeps: 100,
             thin_part_thickness: 0.03,
-            crease_contacts: false,
+            crease_contacts: None,
             gravity: [0.0, -9.81, 0.0],
             damping: 2.0,
             max_velocity: 5.0,
@@ -231,7 +233,8 @@ impl SimConfig {
     }
 
     /// The time stepping in words, for headers: "10 substeps at 60 fps (20 while
-    /// settling), 5 stretch sweeps each" (and the shear and bending rate when set).
+    /// settling), 5 stretch sweeps each" (and the shear and bending rate and crease
+    /// contacts when set).
     pub fn stepping(&self) -> String {
         let settling = if self.settle_substeps == self.substeps {
             String::new()
@@ -254,6 +257,9 @@ impl SimConfig {
                 ", shear and bending every {} substeps",
                 self.shear_bend_interval()
             );
+        }
+        if self.crease_contacts == Some(true) {
+            s += ", crease contacts";
         }
         s
     }

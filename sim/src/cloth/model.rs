@@ -44,6 +44,9 @@ pub struct ClothModel {
     /// settles: a garment's own (`Template::cloth`; `None`: the config's). See
     /// [`ClothModel::drape_config`].
     pub substeps: Option<u32>,
+    /// Whether this cloth takes crease contacts when the config leaves them unset: a
+    /// garment's own (`Template::cloth`; false: not). See [`ClothModel::drape_config`].
+    pub crease_contacts: bool,
 }
 
 /// Checks that a mesh can be simulated: finite positions, valid indices, no degenerate or
@@ -107,15 +110,21 @@ pub fn validate_mesh(mesh: &TriMesh) -> Result<(), String> {
 impl ClothModel {
     /// The config a drape of this cloth runs with: `config` with `substeps` and
     /// `settle_substeps` raised to the cloth's own [`ClothModel::substeps`] where that is
-    /// more. An error if the result is not a valid config (a `shear_bend_substeps` that
-    /// does not divide the garment's substeps).
+    /// more, and `crease_contacts` set to the cloth's own [`ClothModel::crease_contacts`]
+    /// where `config` leaves it unset. An error if the result is not a valid config (a
+    /// `shear_bend_substeps` that does not divide the garment's substeps).
     pub fn drape_config(&self, config: &SimConfig) -> Result<SimConfig, String> {
+        let creases = Some(config.crease_contacts.unwrap_or(self.crease_contacts));
         let Some(n) = self.substeps else {
-            return Ok(config.clone());
+            return Ok(SimConfig {
+                crease_contacts: creases,
+                ..config.clone()
+            });
         };
         let c = SimConfig {
             substeps: config.substeps.max(n),
             settle_substeps: config.settle_substeps.max(n),
+            crease_contacts: creases,
             ..config.clone()
         };
         c.validate()
@@ -296,6 +305,7 @@ impl ClothModel {
             friction: config.friction,
             friction_map: Vec::new(),
             substeps: None,
+            crease_contacts: false,
         })
     }
 

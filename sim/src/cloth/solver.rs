@@ -257,7 +257,7 @@ impl<'m> Solver<'m> {
         // particle has moved less than half the margin.
         let still = body.travel() == 0.0;
         let (x, v, thickness) = (&self.x, &self.v, c.thickness);
-        let creases = c.crease_contacts;
+        let creases = c.crease_contacts == Some(true);
         let detect = |(i, state): (usize, &mut ContactState)| {
             let travel = v[i].length() * frame_dt;
             detect_one(

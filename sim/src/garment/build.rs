@@ -372,7 +372,7 @@ pub fn settle(
         // And without edge contacts on thin parts (session 25).
         thin_part_thickness: 0.0,
         // And with the nearest surface as each particle's only contact (session 45).
-        crease_contacts: false,
+        crease_contacts: Some(false),
         max_frames: config.max_frames.max(RELAX_MAX_FRAMES),
         damping: config.damping.max(RELAX_DAMPING),
         ..config.clone()

@@ -46,6 +46,10 @@ pub struct SimulationDef {
     /// Substeps a frame, at least, throughout the drape (from 1 to 1000): a garment that
     /// hangs by friction sags at the config's 10 and slides down while the body moves.
     pub substeps: Option<u32>,
+    /// Whether the garment's particles take crease contacts (the other side of a fold of
+    /// the body as a second contact) when the simulator config leaves them unset: trousers,
+    /// whose cloth lies in the fold between a raised thigh and the belly.
+    pub crease_contacts: Option<bool>,
 }
 
 /// What a garment's fabric brings to the simulation besides its shape.
@@ -242,6 +246,14 @@ impl GarmentDef {
     /// The garment's own substeps a frame, at least (`[simulation] substeps`), if any.
     pub fn substeps(&self) -> Option<u32> {
         self.simulation.and_then(|s| s.substeps)
+    }
+
+    /// Whether the garment takes crease contacts when the simulator config leaves them unset
+    /// (`[simulation] crease_contacts`; false without it).
+    pub fn crease_contacts(&self) -> bool {
+        self.simulation
+            .and_then(|s| s.crease_contacts)
+            .unwrap_or(false)
     }
 
     /// The garment's own friction against the body (`[material] friction`), if it has one.

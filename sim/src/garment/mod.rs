@@ -193,6 +193,7 @@ pub fn build_template(
             friction: def.friction(),
             below_band: def.below_band(),
             substeps: def.substeps(),
+            crease_contacts: def.crease_contacts(),
             build: serde_json::json!({
                 "vertices": mesh.vertices.len(),
                 "triangles": mesh.triangles.len(),
@@ -695,6 +696,7 @@ pub fn import_mesh(
             friction: None,
             below_band: None,
             substeps: None,
+            crease_contacts: false,
             build: serde_json::json!({
                 "source": path.display().to_string(),
                 "vertices": mesh.vertices.len(),

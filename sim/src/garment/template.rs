@@ -60,6 +60,11 @@ pub struct TemplateMeta {
     /// cooks it into the cloth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub substeps: Option<u32>,
+    /// Whether the garment takes crease contacts when the simulator config leaves them
+    /// unset (its definition's `[simulation]`; false: not). [`Template::cloth`] cooks it into
+    /// the cloth.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub crease_contacts: bool,
 }
 
 /// A graded template's size.
@@ -95,12 +100,13 @@ fn u32s(v: impl IntoIterator<Item = u32>) -> Vec<u8> {
 impl Template {
     /// The template cooked for the simulator with `config`, its fabric's friction
     /// (`meta.friction`) in place of the config's when the garment has its own, below its
-    /// band (`meta.below_band`) if it has one, and its own substeps (`meta.substeps`),
-    /// checked against `config`.
+    /// band (`meta.below_band`) if it has one, its own substeps (`meta.substeps`),
+    /// checked against `config`, and its own crease contacts (`meta.crease_contacts`).
     pub fn cloth(&self, config: &SimConfig) -> Result<ClothModel, SimError> {
         let mut cloth = ClothModel::new(&self.mesh, config, &[])?;
         cloth.friction = self.friction(config);
         cloth.substeps = self.meta.substeps;
+        cloth.crease_contacts = self.meta.crease_contacts;
         if let Some(b) = self.meta.below_band {
             cloth.friction_map =
                 b.friction_map(&self.mesh.vertices, &self.top_opening(), cloth.friction);
@@ -114,16 +120,17 @@ impl Template {
         Ok(cloth)
     }
 
-    /// How `config` steps, for a summary line, with the garment's own substeps if it has
-    /// them ([`SimConfig::stepping`]).
+    /// How `config` steps, for a summary line, with the garment's own substeps and crease
+    /// contacts if it has them ([`SimConfig::stepping`]).
     pub fn stepping(&self, config: &SimConfig) -> String {
-        match self.meta.substeps {
-            Some(n) => format!(
-                "{}; the garment's own: at least {n} substeps throughout",
-                config.stepping()
-            ),
-            None => config.stepping(),
+        let mut s = config.stepping();
+        if let Some(n) = self.meta.substeps {
+            s += &format!("; the garment's own: at least {n} substeps throughout");
         }
+        if config.crease_contacts.is_none() && self.meta.crease_contacts {
+            s += "; the garment's own crease contacts";
+        }
+        s
     }
 
     /// The friction this garment drapes with under `config`: its own, else the config's.
