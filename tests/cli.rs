@@ -821,12 +821,14 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     };
     assert!(
         line("jeans").contains(
-            "[14 sizes by waist, hips, height, friction 0.8 (0.1 beyond 8 cm of the top opening), 30 substeps]"
+            "[14 sizes by waist, hips, height, friction 0.8 (0.1 beyond 8 cm of the top opening), 30 substeps, crease contacts]"
         ),
         "{list}"
     );
     assert!(
-        line("tshirt").contains("14 sizes by chest") && !line("tshirt").contains("friction"),
+        line("tshirt").contains("14 sizes by chest")
+            && !line("tshirt").contains("friction")
+            && !line("tshirt").contains("crease"),
         "{list}"
     );
     assert!(
