@@ -240,6 +240,9 @@ impl Manifest {
             // Made before the edge contacts on thin parts (session 25).
             sim.entry("thin_part_thickness")
                 .or_insert(serde_json::Value::from(0.0));
+            // Made before a stalled drape's sweeps were doubled (session 46).
+            sim.entry("stall_frames")
+                .or_insert(serde_json::Value::from(0));
             for off in ["max_morph_speed", "max_edge_penetration"] {
                 sim.entry(off).or_insert(serde_json::Value::from(1e9));
             }
@@ -349,6 +352,7 @@ mod tests {
         // As written by earlier versions: no such fields.
         let sim = m.config["sim"].as_object_mut().unwrap();
         for old in [
+            "stall_frames",
             "crease_contacts",
             "stretch_iterations",
             "max_morph_speed",
@@ -371,6 +375,8 @@ mod tests {
         // field (the manifest's `garment_crease_contacts` reads false).
         assert_eq!(back.sim.crease_contacts, None);
         assert!(!m.garment_crease_contacts);
+        // Nor the doubled sweeps of a stalled drape.
+        assert_eq!(back.sim.stall_frames, 0);
     }
 
     #[test]

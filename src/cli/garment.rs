@@ -836,6 +836,7 @@ fn check(
                     "polish_max_move_mm": r.polish.map(|p| p.max_move * 1e3),
                     "thin_triangles": r.thin_parts.map(|t| t.triangles),
                     "thin_edge_pushes": r.thin_parts.map(|t| t.edge_pushes),
+                    "stalled": r.stalled,
                 }),
                 strains,
             ))
@@ -968,6 +969,11 @@ fn check(
         "polish_max_move_mm": f("polish_max_move_mm").into_iter().fold(0.0, f64::max),
         "thin_triangles_mean": mean_of(&rows, "thin_triangles"),
         "share_with_thin_edge_pushes": share_nonzero("thin_edge_pushes"),
+        "stalled": rows.iter().filter(|r| r["stalled"] == true).count(),
+        "stalled_converged": rows
+            .iter()
+            .filter(|r| r["stalled"] == true && r["converged"] == true)
+            .count(),
         "wall_seconds": t0.elapsed().as_secs_f64(),
     });
     println!(
@@ -1001,6 +1007,12 @@ fn check(
             before * 100.0,
             moved,
             summary["polish_max_move_mm"].as_f64().unwrap_or(0.0),
+        );
+    }
+    if summary["stalled"].as_u64().unwrap_or(0) > 0 {
+        println!(
+            "stalled (still moving after {} settling frames, settled on with twice the stretch sweeps): {} drapes, {} of them then at rest",
+            config.stall_frames, summary["stalled"], summary["stalled_converged"],
         );
     }
     if let Some(tris) = summary["thin_triangles_mean"].as_f64() {

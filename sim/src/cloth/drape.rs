@@ -367,6 +367,10 @@ pub struct DrapeReport {
     /// 0, or the body has none).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub thin_parts: Option<ThinStats>,
+    /// Whether the drape was still moving after `stall_frames` settling frames and settled
+    /// on with twice the stretch sweeps (`SimConfig::stall_frames`).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub stalled: bool,
 }
 
 /// What the edge contacts on the body's thin parts did in one drape (`thin.rs`).
@@ -764,6 +768,7 @@ pub fn drape(
         }
     }
     let mut settle = 0u32;
+    let mut stalled = false;
     if failure.is_none() {
         body.hold();
         if let Some(thin) = &mut thin {
@@ -773,6 +778,12 @@ pub fn drape(
         solver.set_substeps(config.settle_substeps);
         let mut calm = 0u32;
         while settle < config.max_frames && calm < config.rest_frames {
+            if config.stall_frames > 0 && settle == config.stall_frames {
+                // Still moving: a limit cycle of the solve is likely; a different sweep
+                // count breaks it (`SimConfig::stall_frames`).
+                solver.set_stretch_iterations(2 * config.stretch_iterations);
+                stalled = true;
+            }
             settle += 1;
             match step(&mut solver, &body, thin.as_ref(), false) {
                 Ok(stats) => {
@@ -887,6 +898,7 @@ pub fn drape(
             triangles: t.len(),
             edge_pushes: solver.edge_pushes,
         }),
+        stalled,
     };
     DrapeResult {
         positions: x,
@@ -923,6 +935,7 @@ mod tests {
             top_drop: None,
             polish: None,
             thin_parts: None,
+            stalled: false,
         }
     }
 

@@ -185,6 +185,12 @@ impl<'m> Solver<'m> {
         self.x.iter().map(|p| Vec3::from(*p)).collect()
     }
 
+    /// Sets the stretch sweeps per substep from the next substep on (the rest of the config
+    /// as it was): how a stalled drape settles on (`SimConfig::stall_frames`).
+    pub fn set_stretch_iterations(&mut self, sweeps: u32) {
+        self.config.stretch_iterations = sweeps.max(1);
+    }
+
     /// Runs the next frames with `substeps` substeps (the drape protocol's
     /// `settle_substeps` once the body holds still): the constraints are prepared again for
     /// the new substep length; positions, velocities and contacts carry over.
