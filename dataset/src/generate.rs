@@ -62,9 +62,9 @@ impl Default for GenOptions {
 }
 
 /// What a dataset folder was started with (`config.json`): the resolved config and its
-/// sha256, the garment's own friction, friction below its band, substeps and crease contacts
-/// (for a garment that has them) and the program's sha256 (absent in folders started before they were
-/// recorded).
+/// sha256, the garment's own friction, friction below its band, substeps and crease
+/// contacts (for a garment that has them) and the program's sha256 (absent in folders
+/// started before they were recorded).
 #[derive(Debug, Serialize, Deserialize)]
 struct Stamp {
     config_sha256: String,

@@ -301,21 +301,14 @@ impl<'w> Redraper<'w> {
             )));
         }
         // And its own crease contacts (off in a manifest written before they existed).
+        let on_off = |on: bool| if on { "on" } else { "off" };
         if data.manifest.garment_crease_contacts != wardrobe.crease_contacts() {
             return Err(EvalError::Invalid(format!(
                 "{} was draped with the {}'s own crease contacts {}; they are {} here (the garment's `[simulation]` changed): regenerate the dataset",
                 data.dir.display(),
                 config.garment,
-                if data.manifest.garment_crease_contacts {
-                    "on"
-                } else {
-                    "off"
-                },
-                if wardrobe.crease_contacts() {
-                    "on"
-                } else {
-                    "off"
-                },
+                on_off(data.manifest.garment_crease_contacts),
+                on_off(wardrobe.crease_contacts()),
             )));
         }
         let sizes = data

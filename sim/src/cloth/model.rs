@@ -114,19 +114,15 @@ impl ClothModel {
     /// where `config` leaves it unset. An error if the result is not a valid config (a
     /// `shear_bend_substeps` that does not divide the garment's substeps).
     pub fn drape_config(&self, config: &SimConfig) -> Result<SimConfig, String> {
-        let creases = Some(config.crease_contacts.unwrap_or(self.crease_contacts));
-        let Some(n) = self.substeps else {
-            return Ok(SimConfig {
-                crease_contacts: creases,
-                ..config.clone()
-            });
-        };
-        let c = SimConfig {
-            substeps: config.substeps.max(n),
-            settle_substeps: config.settle_substeps.max(n),
-            crease_contacts: creases,
+        let mut c = SimConfig {
+            crease_contacts: Some(config.crease_contacts.unwrap_or(self.crease_contacts)),
             ..config.clone()
         };
+        let Some(n) = self.substeps else {
+            return Ok(c);
+        };
+        c.substeps = c.substeps.max(n);
+        c.settle_substeps = c.settle_substeps.max(n);
         c.validate()
             .map_err(|e| format!("with the garment's own {n} substeps: {e}"))?;
         Ok(c)
