@@ -524,6 +524,43 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     }
     assert!(r["batched_per_drape"].as_f64().unwrap() > 0.0 && r["flops"].as_f64().unwrap() > 1e6);
 
+    // drape bench predict at the run's widths on the same 3k T-shirt: its GFLOPs column is
+    // the speed-up's count, and its rate is that count over the network's time.
+    let (ok, text) = run(drape()
+        .args(["bench", "predict"])
+        .arg(run_dir.join("config.toml"))
+        .args(["--resolution", "3000", "--batch", "1", "--variant", "local"])
+        .args(["--repeats", "1"]));
+    assert!(ok, "{text}");
+    assert_eq!(
+        r["vertices"].as_u64().unwrap(),
+        2967,
+        "the tiny data's T-shirt"
+    );
+    let row: Vec<f64> = text
+        .lines()
+        .find(|l| l.starts_with("GarNet-Local"))
+        .unwrap_or_else(|| panic!("{text}"))
+        .split_whitespace()
+        .skip(1)
+        .map(|x| x.parse().unwrap())
+        .collect();
+    // vertices, batch, warp, inputs, network ms/b, network ms/s, ms/drape, GFLOPs, GFLOP/s
+    assert_eq!(row.len(), 9, "{text}");
+    assert_eq!((row[0], row[1]), (2967.0, 1.0), "{text}");
+    let gflops = r["flops"].as_f64().unwrap() / 1e9;
+    assert!(
+        (row[7] - gflops).abs() < 6e-4,
+        "{} against {gflops}",
+        row[7]
+    );
+    let rate = row[7] / (row[5] / 1e3);
+    assert!(
+        (row[8] - rate).abs() < 0.02 * rate + 0.2,
+        "{} GFLOP/s against {rate}: {text}",
+        row[8]
+    );
+
     // Unknown fields and out-of-range values are named.
     let bad = config(tmp.path(), 2, "local", "\nwidth = 3");
     let (ok, text) = train(&bad, &data, &tmp.path().join("bad"), &[]);

@@ -62,8 +62,9 @@ enum BenchCommand {
     },
     /// Inference time of GarNet networks: per drape, the DQS warp, the inputs (normals,
     /// k-NN searches) and both streams, at batch 1 and 16, for each variant and garment
-    /// size. Freshly initialised weights of the config's widths (the time does not depend
-    /// on the weights).
+    /// size, with each variant's forward GFLOPs per drape and the rate the network ran
+    /// them at. Freshly initialised weights of the config's widths (the time does not
+    /// depend on the weights).
     Predict {
         /// Training config giving the widths (configs/train/*.toml).
         #[arg(value_name = "CONFIG.toml")]
@@ -162,7 +163,7 @@ fn bench_predict(
         if shared == 1 { "" } else { "s" }
     );
     println!(
-        "{:<22} {:>8} {:>6} {:>11} {:>11} {:>13} {:>13} {:>10}",
+        "{:<22} {:>8} {:>6} {:>11} {:>11} {:>13} {:>13} {:>10} {:>8} {:>9}",
         "variant",
         "vertices",
         "batch",
@@ -170,7 +171,9 @@ fn bench_predict(
         "inputs ms/s",
         "network ms/b",
         "network ms/s",
-        "ms/drape"
+        "ms/drape",
+        "GFLOPs",
+        "GFLOP/s"
     );
     for &res in resolutions {
         let t = super::garment::template(ctx, garment, Some(res), &model)?;
@@ -215,8 +218,10 @@ fn bench_predict(
                     }
                 }
                 let (inputs, network) = (median(inputs), median(network));
+                // Forward FLOPs of one drape, and the rate the network ran them at.
+                let flops = net.forward_flops(&c.model);
                 println!(
-                    "{:<22} {:>8} {:>6} {:>11.2} {:>11.2} {:>13.1} {:>13.1} {:>10.1}",
+                    "{:<22} {:>8} {:>6} {:>11.2} {:>11.2} {:>13.1} {:>13.1} {:>10.1} {:>8.3} {:>9.1}",
                     variant.paper_name(),
                     t.mesh.vertices.len(),
                     b,
@@ -224,7 +229,9 @@ fn bench_predict(
                     inputs * 1e3,
                     network * 1e3,
                     network * 1e3 / b as f64,
-                    (warp + inputs + network / b as f64) * 1e3
+                    (warp + inputs + network / b as f64) * 1e3,
+                    flops / 1e9,
+                    flops * b as f64 / network / 1e9
                 );
             }
         }
