@@ -478,9 +478,31 @@ fn garments_build_once_warp_and_drape_by_name() {
         &w_obj,
         "--png",
         &p("w.png"),
+        "--stretch-png",
+        &p("ws.png"),
     ];
     let o = drape(&warp);
     assert!(o.status.success(), "{}", stderr(&o));
+    // It says how many edges the warp stretches by over 30%, and the stretch map is the
+    // same two views with a colour bar below.
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    let share: f64 = out
+        .split("; ")
+        .nth(1)
+        .and_then(|t| t.split('%').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!((0.0..100.0).contains(&share), "{out}");
+    let png_size = |f: &str| {
+        let d = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(p(f)).unwrap()));
+        let r = d.read_info().unwrap();
+        (r.info().width, r.info().height)
+    };
+    let (plain, stretch) = (png_size("w.png"), png_size("ws.png"));
+    assert!(
+        stretch.0 == plain.0 && stretch.1 > plain.1,
+        "{plain:?} {stretch:?}"
+    );
     assert_eq!(count(Path::new(&w_obj), "v "), n);
     assert_eq!(
         count(Path::new(&w_obj), "f "),
@@ -1102,4 +1124,45 @@ fn a_drape_caught_in_a_limit_cycle_of_the_solve_settles_with_more_sweeps() {
     ] {
         assert_eq!(d[k], off[k], "{k}: {d} {off}");
     }
+}
+
+/// The garment issue's bar for trousers: on 100 sampled bodies and poses the jeans' DQS warp
+/// stretches at most 1% of the edges by over 30%, read over all the warps' edges (every
+/// warp has the same edges, so the mean of the per-warp shares). With the thighs' split of
+/// the weights averaged over 0.18 m (`[skinning] split`) the 3k jeans read 0.695%, with
+/// 0.60% of the warps' vertices inside the body; without it 1.024% and 0.30% (docs/
+/// garments.md, "The jeans' warp"). Read per warp the bar does not hold: 21 of the 100
+/// warps are above 1%.
+#[test]
+fn the_jeans_warp_stretches_under_one_percent_of_edges_by_over_30_percent() {
+    let out = tempfile::tempdir().unwrap();
+    let report = out.path().join("w.json");
+    let o = drape(&[
+        "garment",
+        "check",
+        "jeans",
+        "--resolution",
+        "3000",
+        "--warp-only",
+        "--samples",
+        "100",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let shares: Vec<f64> = r["warps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w["warp_edges_over_30pct"].as_f64().unwrap())
+        .collect();
+    assert_eq!(shares.len(), 100);
+    let mean = shares.iter().sum::<f64>() / 100.0;
+    assert!((0.0065..0.0075).contains(&mean), "{mean}");
+    let above = shares.iter().filter(|&&s| s > 0.01).count();
+    assert!((15..=28).contains(&above), "{above} warps above 1%");
+    // The price: more of the warp inside the body than the 0.30% without the split.
+    let inside = r["summary"]["warp_inside_mean"].as_f64().unwrap();
+    assert!((0.0050..0.0070).contains(&inside), "{inside}");
 }

@@ -495,6 +495,23 @@ fn bad_materials_are_rejected() {
         ("[simulation]\nsubsteps = 1001\n", "from 1 to 1000"),
         ("[simulation]\nsweeps = 3\n", "unknown field"),
         (
+            "[skinning]\nsplit = { bones = [\"LeftUpLeg\", \"RightUpLeg\"], reach = 0.001 }\n",
+            "reach must be from 0.005 to 0.5",
+        ),
+        (
+            "[skinning]\nsplit = { bones = [\"LeftUpLeg\", \"RightUpLeg\"], reach = nan }\n",
+            "reach must be from 0.005 to 0.5",
+        ),
+        (
+            "[skinning]\nsplit = { bones = [\"LeftUpLeg\", \"LeftUpLeg\"], reach = 0.1 }\n",
+            "two different bones",
+        ),
+        (
+            "[skinning]\nsplit = { bones = [\"LeftUpLeg\"], reach = 0.1 }\n",
+            "expected an array of length 2",
+        ),
+        ("[skinning]\nrounds = 8\n", "unknown field"),
+        (
             "[material]\nbelow_band = { width = 0.08, friction = 0.1 }\n",
             "needs the band's own `friction`",
         ),
@@ -629,4 +646,89 @@ fn the_jeans_bring_their_own_friction_to_the_simulator() {
             assert_eq!(mu, config.friction, "{}'s cloth", t.meta.name);
         }
     }
+}
+
+/// The share of the two thighs' weights that goes to the left one, per vertex (None where
+/// the vertex follows neither).
+fn left_shares(t: &Template, left: u16, right: u16) -> Vec<Option<f32>> {
+    (0..t.mesh.vertices.len())
+        .map(|v| {
+            let w = |bone: u16| -> f32 {
+                (0..4)
+                    .filter(|&k| t.skin.bones[v][k] == bone)
+                    .map(|k| t.skin.weights[v][k])
+                    .sum()
+            };
+            let (l, r) = (w(left), w(right));
+            (l + r > 0.05).then(|| l / (l + r))
+        })
+        .collect()
+}
+
+#[test]
+fn the_jeans_thighs_share_the_crotch_over_their_reach() {
+    // The jeans' `[skinning] split` against the same definition without it: the same cloth
+    // and bindings; more vertices follow both thighs (a left share from 10 to 90%), and the
+    // vertices that follow neither thigh keep their weights.
+    let canonical = model().shape(&Default::default()).unwrap();
+    let jeans = built().iter().find(|t| t.meta.name == "jeans").unwrap();
+    let text = BUILT_IN.iter().find(|(n, _)| *n == "jeans").unwrap().1;
+    let def = garment::GarmentDef::from_toml(text, "jeans").unwrap();
+    let split = def.split().unwrap();
+    assert_eq!((split.bones[0].as_str(), split.reach), ("LeftUpLeg", 0.18));
+    assert_eq!(
+        garment::skin::smoothing_rounds(&jeans.mesh, split.reach),
+        88
+    );
+    let line = "split = { bones = [\"LeftUpLeg\", \"RightUpLeg\"], reach = 0.18 }\n";
+    let plain_text = text.replace(line, "");
+    assert_ne!(plain_text, text);
+    let plain_def = garment::GarmentDef::from_toml(&plain_text, "jeans without it").unwrap();
+    assert_eq!(plain_def.split(), None);
+    let plain = garment::build_template(
+        &plain_def,
+        &default_assets_dir().join(garment::HELPERS_FILE),
+        &canonical,
+        RESOLUTION,
+        String::new(),
+    )
+    .unwrap();
+    assert_eq!(plain.mesh, jeans.mesh);
+    assert_eq!(plain.bindings, jeans.bindings);
+    let sk = &model().skeleton;
+    let (l, r) = (
+        sk.index("LeftUpLeg").unwrap() as u16,
+        sk.index("RightUpLeg").unwrap() as u16,
+    );
+    let (with, without) = (left_shares(jeans, l, r), left_shares(&plain, l, r));
+    let both = |s: &[Option<f32>]| {
+        s.iter()
+            .filter(|x| x.is_some_and(|x| (0.1..0.9).contains(&x)))
+            .count()
+    };
+    // 291 against 83 (3k).
+    let (b1, b0) = (both(&with), both(&without));
+    assert!(
+        b1 > 3 * b0,
+        "vertices following both thighs: {b1} with the split, {b0} without"
+    );
+    let mut untouched = 0;
+    for v in 0..jeans.mesh.vertices.len() {
+        let weight = |t: &Template, bone: u16| -> f32 {
+            (0..4)
+                .filter(|&k| t.skin.bones[v][k] == bone)
+                .map(|k| t.skin.weights[v][k])
+                .sum()
+        };
+        let thighs = |t: &Template| weight(t, l) + weight(t, r);
+        if thighs(&plain) < 1e-4 && thighs(jeans) < 1e-4 {
+            untouched += 1;
+            for &bone in plain.skin.bones[v].iter().chain(&jeans.skin.bones[v]) {
+                let d = (weight(&plain, bone) - weight(jeans, bone)).abs();
+                assert!(d < 1e-4, "vertex {v}, bone {bone}: {d}");
+            }
+        }
+    }
+    // The lower legs, at least.
+    assert!(untouched > jeans.mesh.vertices.len() / 4, "{untouched}");
 }

@@ -520,8 +520,71 @@ pub struct WarpArgs {
     /// or a size's name. Default: the base size M, the network's input.
     #[arg(long, value_name = "auto|NAME")]
     size: Option<String>,
+    /// Also render the warp on the posed body with each vertex coloured by the largest
+    /// stretch of its edges against the template (0 to 60%, red beyond; the trousers' bar
+    /// counts edges stretched by over 30%), with a colour bar.
+    #[arg(long, value_name = "FILE.png")]
+    stretch_png: Option<PathBuf>,
     #[command(flatten)]
     target: BodyOutputArgs,
+}
+
+/// Stretch shown at the red end of `drape warp --stretch-png` (a fraction).
+const WARP_STRETCH_MAP_MAX: f32 = 0.6;
+
+/// Each vertex's largest edge stretch `l / l0 - 1` of `x` against the template `t` (0 for
+/// edges shorter than in the template).
+fn vertex_stretch(t: &Template, x: &[glam::Vec3]) -> Vec<f32> {
+    let v = &t.mesh.vertices;
+    let mut out = vec![0.0f32; v.len()];
+    for f in &t.mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (f[k] as usize, f[(k + 1) % 3] as usize);
+            let rest = v[a].distance(v[b]);
+            if rest > 0.0 {
+                let s = (x[a].distance(x[b]) / rest - 1.0).max(0.0);
+                out[a] = out[a].max(s);
+                out[b] = out[b].max(s);
+            }
+        }
+    }
+    out
+}
+
+/// The warp on the posed body, front and side, coloured by [`vertex_stretch`], with a colour
+/// bar in percent.
+fn stretch_map(
+    t: &Template,
+    warped: &TriMesh,
+    body: &[glam::Vec3],
+    body_triangles: &[[u32; 3]],
+) -> anyhow::Result<Vec<u8>> {
+    use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer};
+    let percent: Vec<f32> = vertex_stretch(t, &warped.vertices)
+        .iter()
+        .map(|s| s * 100.0)
+        .collect();
+    let colours: Vec<[u8; 3]> = percent
+        .iter()
+        .map(|p| eval::render::error_colour(p / (WARP_STRETCH_MAP_MAX * 100.0)))
+        .collect();
+    let img = eval::render::render(
+        &[
+            Layer::new(body, body_triangles, BODY_COLOUR),
+            Layer::new(&warped.vertices, &warped.triangles, GARMENT_COLOUR)
+                .with_vertex_colours(&colours, &percent),
+        ],
+        &eval::render::RenderOptions::default(),
+    )?;
+    let bar = eval::plot::colour_bar(
+        (WARP_STRETCH_MAP_MAX * 100.0) as f64,
+        "largest edge stretch of the DQS warp at each vertex (%)",
+        img.width.min(700),
+    );
+    Ok(eval::render::encode_png(&eval::render::stack(
+        &[img, bar],
+        [255, 255, 255],
+    ))?)
 }
 
 /// A shaped, posed body and the files a garment on it goes to (`drape warp`, `drape
@@ -565,19 +628,35 @@ pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
         Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &warped)?)),
         None => None,
     };
+    let stretch = match &args.stretch_png {
+        Some(p) => Some((
+            p.as_path(),
+            stretch_map(&t, &warped, &posed.vertices, &model.triangles)?,
+        )),
+        None => None,
+    };
     let sized = size.map(|s| format!(", size {s}")).unwrap_or_default();
     let header = format!(
         "drape warp: garment {}{sized} (DQS), pose {}",
         args.garment, resolved.description
     );
-    write_outputs(&warped, &header, Some(&args.target.output), image)?;
+    let obj = warped.to_obj(&header);
+    let mut files: Vec<(&Path, &[u8])> = vec![(&args.target.output, obj.as_bytes())];
+    for (p, bytes) in image.iter().chain(&stretch) {
+        files.push((p, bytes));
+    }
+    sim::io::write_all_or_nothing(&files)?;
     println!(
-        "{}{sized}: {} vertices warped to pose {} -> {}",
+        "{}{sized}: {} vertices warped to pose {} -> {}; {:.2}% of edges stretched by over 30%",
         args.garment,
         warped.vertices.len(),
         resolved.description,
-        args.target.output.display()
+        args.target.output.display(),
+        100.0 * overstretched(&t, &warped.vertices, 0.3, &|_| true)
     );
+    if let Some((p, _)) = &stretch {
+        println!("stretch map -> {}", p.display());
+    }
     Ok(())
 }
 
@@ -774,12 +853,17 @@ fn check(
             let warp = t.warp(reference, &target, &posed);
             let warp_over = overstretched(t, &warp, 0.3, &|_| true);
             if mode == CheckMode::WarpOnly {
+                // The warp's vertices inside the posed body (ray parity, any depth).
+                let collider =
+                    sim::cloth::BodyCollider::new(&posed.vertices, &model.triangles, 0.0);
+                let inside = eval::metrics::interpenetration(&collider, &warp);
                 bar.inc(1);
                 return Ok((
                     serde_json::json!({
                         "case": label,
                         "size": size,
                         "height_m": target.height(),
+                        "warp_inside": inside,
                         "warp_edges_over_30pct": warp_over,
                         "second_part_warp_edges_over_30pct": second.as_ref().map(|p| {
                             overstretched(t, &warp, 0.3, &|v| p[v as usize] == 1)
@@ -854,10 +938,16 @@ fn check(
             .map(|r| r["warp_edges_over_30pct"].as_f64().unwrap_or(0.0))
             .collect();
         let n = w.len().max(1) as f64;
+        let inside: Vec<f64> = rows
+            .iter()
+            .map(|r| r["warp_inside"].as_f64().unwrap_or(0.0))
+            .collect();
         let summary = serde_json::json!({
             "garment": name,
             "vertices": t.len(),
             "warps": rows.len(),
+            "warp_inside_mean": inside.iter().sum::<f64>() / n,
+            "warp_inside_max": inside.iter().copied().fold(0.0, f64::max),
             "warp_edges_over_30pct_mean": w.iter().sum::<f64>() / n,
             "warp_edges_over_30pct_max": w.iter().copied().fold(0.0, f64::max),
             "warps_over_1pct": w.iter().filter(|&&x| x > 0.01).count(),
@@ -875,6 +965,11 @@ fn check(
                 * 100.0,
             summary["warp_edges_over_30pct_max"].as_f64().unwrap_or(0.0) * 100.0,
             summary["warps_over_1pct"]
+        );
+        println!(
+            "vertices of the warp inside the posed body: {:.2}% on average, {:.2}% at most",
+            summary["warp_inside_mean"].as_f64().unwrap_or(0.0) * 100.0,
+            summary["warp_inside_max"].as_f64().unwrap_or(0.0) * 100.0
         );
         if let Some(m) = summary["second_part_warp_edges_over_30pct_max"].as_f64() {
             println!(

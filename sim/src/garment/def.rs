@@ -37,6 +37,35 @@ pub struct GarmentDef {
     /// Simulator settings the garment needs (none: the simulator config's).
     #[serde(default)]
     pub simulation: Option<SimulationDef>,
+    /// How the body's skinning weights are carried to the garment (none: the default).
+    #[serde(default)]
+    pub skinning: Option<SkinningDef>,
+}
+
+/// How the garment's skinning weights are made from the body's.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkinningDef {
+    /// Two bones whose share of the weights is divided between them over a wider reach
+    /// than the other weights are averaged over (trousers: the two thighs).
+    pub split: Option<SplitDef>,
+}
+
+/// Two bones that share the cloth between them over a distance: where a vertex follows
+/// both, the split between them is averaged over `reach` of cloth while their sum, and
+/// every other weight, is averaged as without it. Trousers: across the crotch the two thighs
+/// carry the cloth apart in a wide stance, and the wider the band in which the cloth
+/// follows both, the fewer edges of the DQS warp stretch; the band stays between the legs,
+/// so the hips are not blurred into the thighs (which sinks the warp into the body).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SplitDef {
+    /// The two bones, by name.
+    pub bones: [String; 2],
+    /// The distance over the garment (m) the split is averaged over: `(reach / mean
+    /// edge)^2` rounds of neighbour averaging, at least
+    /// [`crate::garment::skin::SMOOTHING_ROUNDS`] (from 0.005 to 0.5).
+    pub reach: f32,
 }
 
 /// What a garment needs of the simulator.
@@ -256,6 +285,11 @@ impl GarmentDef {
             .unwrap_or(false)
     }
 
+    /// The two bones whose split is averaged over a reach (`[skinning] split`), if any.
+    pub fn split(&self) -> Option<&SplitDef> {
+        self.skinning.as_ref().and_then(|s| s.split.as_ref())
+    }
+
     /// The garment's own friction against the body (`[material] friction`), if it has one.
     pub fn friction(&self) -> Option<f32> {
         self.material.and_then(|m| m.friction)
@@ -300,6 +334,19 @@ impl GarmentDef {
             if def.friction().is_none() {
                 return Err(format!(
                     "{origin}: material below_band needs the band's own `friction`"
+                ));
+            }
+        }
+        if let Some(split) = def.split() {
+            if !(0.005..=0.5).contains(&split.reach) {
+                return Err(format!(
+                    "{origin}: skinning split reach must be from 0.005 to 0.5 m (got {})",
+                    split.reach
+                ));
+            }
+            if split.bones[0] == split.bones[1] {
+                return Err(format!(
+                    "{origin}: skinning split needs two different bones"
                 ));
             }
         }

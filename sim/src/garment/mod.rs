@@ -119,11 +119,13 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// Skins a mesh on the canonical body: bindings and weights (parts restricted to bones).
+/// Skins a mesh on the canonical body: bindings and weights (parts restricted to bones), the
+/// `split` bones' division averaged over its reach (m; [`skin::smoothing_rounds`]).
 fn skin_mesh(
     mesh: TriMesh,
     canonical: &ShapedBody<'_>,
     only: &[Vec<u16>],
+    split: Option<([u16; 2], f32)>,
 ) -> (
     TriMesh,
     crate::body::skinning::SkinWeights,
@@ -139,6 +141,7 @@ fn skin_mesh(
         &model.skin,
         model.skeleton.len(),
         only,
+        split.map(|(bones, reach)| (bones, skin::smoothing_rounds(&mesh, reach))),
     );
     (mesh, weights, bindings)
 }
@@ -180,7 +183,19 @@ pub fn build_template(
         .iter()
         .map(|&p| restricted[p as usize].clone())
         .collect();
-    let (mesh, skin, bindings) = skin_mesh(built.mesh, canonical, &only);
+    let split = match def.split() {
+        None => None,
+        Some(sp) => {
+            let mut bones = [0u16; 2];
+            for (b, n) in bones.iter_mut().zip(&sp.bones) {
+                *b = skeleton.index(n).map(|i| i as u16).ok_or_else(|| {
+                    GarmentError::Definition(format!("{}: no bone named {n}", def.name))
+                })?;
+            }
+            Some((bones, sp.reach))
+        }
+    };
+    let (mesh, skin, bindings) = skin_mesh(built.mesh, canonical, &only, split);
     let a = built.angles;
     Ok(Template {
         meta: template::TemplateMeta {
@@ -684,7 +699,7 @@ pub fn import_mesh(
             "{inside} vertices lie inside the canonical body in its rest pose; the template must be outside it"
         )));
     }
-    let (mesh, skin, bindings) = skin_mesh(mesh, canonical, &[]);
+    let (mesh, skin, bindings) = skin_mesh(mesh, canonical, &[], None);
     Ok(Template {
         meta: template::TemplateMeta {
             format: template::FORMAT.to_string(),
