@@ -279,9 +279,9 @@ mod tests {
     #[test]
     fn a_reach_gives_the_same_blur_at_every_resolution() {
         // Right triangles of 1 cm legs: mean edge (1 + 1 + sqrt 2) / 3 cm = 11.381 mm.
-        let coarse = grid(Vec3::ZERO, Vec3::X * 0.01, Vec3::Z * 0.01, 20, 20);
+        let coarse = grid(Vec3::ZERO, Vec3::X * 0.2, Vec3::Z * 0.2, 20, 20);
         // Half the spacing: four times the rounds for the same reach.
-        let fine = grid(Vec3::ZERO, Vec3::X * 0.005, Vec3::Z * 0.005, 40, 40);
+        let fine = grid(Vec3::ZERO, Vec3::X * 0.2, Vec3::Z * 0.2, 40, 40);
         // (0.1 / 0.011381)^2 = 77.2 and (0.1 / 0.0056904)^2 = 308.8, rounded up.
         assert_eq!(smoothing_rounds(&coarse, 0.1), 78);
         assert_eq!(smoothing_rounds(&fine, 0.1), 309);
