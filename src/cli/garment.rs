@@ -559,32 +559,27 @@ fn stretch_map(
     body: &[glam::Vec3],
     body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
-    use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer};
     let percent: Vec<f32> = vertex_stretch(t, &warped.vertices)
         .iter()
         .map(|s| s * 100.0)
         .collect();
-    let colours: Vec<[u8; 3]> = percent
-        .iter()
-        .map(|p| eval::render::error_colour(p / (WARP_STRETCH_MAP_MAX * 100.0)))
-        .collect();
-    let img = eval::render::render(
-        &[
-            Layer::new(body, body_triangles, BODY_COLOUR),
-            Layer::new(&warped.vertices, &warped.triangles, GARMENT_COLOUR)
-                .with_vertex_colours(&colours, &percent),
-        ],
+    let max = WARP_STRETCH_MAP_MAX * 100.0;
+    let img = super::simulate::coloured_picture(
+        &warped.vertices,
+        &warped.triangles,
+        &percent,
+        max,
+        body,
+        body_triangles,
         &eval::render::RenderOptions::default(),
     )?;
-    let bar = eval::plot::colour_bar(
-        (WARP_STRETCH_MAP_MAX * 100.0) as f64,
-        "largest edge stretch of the DQS warp at each vertex (%)",
-        img.width.min(700),
-    );
-    Ok(eval::render::encode_png(&eval::render::stack(
-        &[img, bar],
-        [255, 255, 255],
-    ))?)
+    super::simulate::with_bar(img, |width| {
+        eval::plot::colour_bar(
+            f64::from(max),
+            "largest edge stretch of the DQS warp at each vertex (%)",
+            width,
+        )
+    })
 }
 
 /// A shaped, posed body and the files a garment on it goes to (`drape warp`, `drape

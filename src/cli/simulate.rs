@@ -292,20 +292,6 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
 /// Strain shown at the red end of a strain map (a fraction).
 const STRAIN_MAP_MAX: f32 = 0.10;
 
-/// Each vertex's largest edge strain in percent, and its colour on the strain maps' scale
-/// (0 to `STRAIN_MAP_MAX`; more is red).
-fn strain_colours(cloth: &ClothModel, x: &[glam::Vec3]) -> (Vec<[u8; 3]>, Vec<f32>) {
-    let percent: Vec<f32> = drape::vertex_strain(cloth, x)
-        .iter()
-        .map(|s| s * 100.0)
-        .collect();
-    let colours = percent
-        .iter()
-        .map(|p| eval::render::error_colour(p / (STRAIN_MAP_MAX * 100.0)))
-        .collect();
-    (colours, percent)
-}
-
 /// The strain maps' colour bar, `width` pixels wide.
 pub(crate) fn strain_bar(width: u32) -> eval::render::Image {
     eval::plot::colour_bar(
@@ -315,8 +301,46 @@ pub(crate) fn strain_bar(width: u32) -> eval::render::Image {
     )
 }
 
+/// The garment `x` (faces `triangles`) on the body, front and side, each garment vertex
+/// coloured by its value in `percent` on a scale from 0 to `max_percent` (more is red; no
+/// colour bar).
+pub(crate) fn coloured_picture(
+    x: &[glam::Vec3],
+    triangles: &[[u32; 3]],
+    percent: &[f32],
+    max_percent: f32,
+    body: &[glam::Vec3],
+    body_triangles: &[[u32; 3]],
+    opts: &eval::render::RenderOptions,
+) -> anyhow::Result<eval::render::Image> {
+    use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer};
+    let colours: Vec<[u8; 3]> = percent
+        .iter()
+        .map(|p| eval::render::error_colour(p / max_percent))
+        .collect();
+    Ok(eval::render::render(
+        &[
+            Layer::new(body, body_triangles, BODY_COLOUR),
+            Layer::new(x, triangles, GARMENT_COLOUR).with_vertex_colours(&colours, percent),
+        ],
+        opts,
+    )?)
+}
+
+/// `img` with `bar` below it, as a PNG.
+pub(crate) fn with_bar(
+    img: eval::render::Image,
+    bar: impl FnOnce(u32) -> eval::render::Image,
+) -> anyhow::Result<Vec<u8>> {
+    let bar = bar(img.width.min(700));
+    Ok(eval::render::encode_png(&eval::render::stack(
+        &[img, bar],
+        [255, 255, 255],
+    ))?)
+}
+
 /// The drape `x` (faces `triangles`) on the body, front and side, each garment vertex
-/// coloured by the largest strain of its edges (no colour bar).
+/// coloured by the largest strain of its edges, 0 to `STRAIN_MAP_MAX` (no colour bar).
 pub(crate) fn strain_picture(
     cloth: &ClothModel,
     x: &[glam::Vec3],
@@ -325,15 +349,19 @@ pub(crate) fn strain_picture(
     body_triangles: &[[u32; 3]],
     opts: &eval::render::RenderOptions,
 ) -> anyhow::Result<eval::render::Image> {
-    use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer};
-    let (colours, percent) = strain_colours(cloth, x);
-    Ok(eval::render::render(
-        &[
-            Layer::new(body, body_triangles, BODY_COLOUR),
-            Layer::new(x, triangles, GARMENT_COLOUR).with_vertex_colours(&colours, &percent),
-        ],
+    let percent: Vec<f32> = drape::vertex_strain(cloth, x)
+        .iter()
+        .map(|s| s * 100.0)
+        .collect();
+    coloured_picture(
+        x,
+        triangles,
+        &percent,
+        STRAIN_MAP_MAX * 100.0,
+        body,
+        body_triangles,
         opts,
-    )?)
+    )
 }
 
 /// The drape on the body, front and side, each garment vertex coloured by the largest
@@ -352,9 +380,5 @@ fn strain_map(
         body_triangles,
         &eval::render::RenderOptions::default(),
     )?;
-    let bar = strain_bar(img.width.min(700));
-    Ok(eval::render::encode_png(&eval::render::stack(
-        &[img, bar],
-        [255, 255, 255],
-    ))?)
+    with_bar(img, strain_bar)
 }

@@ -113,52 +113,21 @@ pub fn transfer_weights(
 
     let neighbours = neighbours(garment);
     let raw = split.map(|_| dense.clone());
-    for _ in 0..SMOOTHING_ROUNDS {
-        let mut next = dense.clone();
-        for v in 0..n {
-            let nb = &neighbours[v];
-            if nb.is_empty() {
-                continue;
-            }
-            let inv = 1.0 / nb.len() as f32;
-            for j in 0..bones {
-                let mean: f32 = nb
-                    .iter()
-                    .map(|&u| dense[u as usize * bones + j])
-                    .sum::<f32>()
-                    * inv;
-                next[v * bones + j] = 0.5 * dense[v * bones + j] + 0.5 * mean;
-            }
-        }
-        dense = next;
-    }
+    let mut dense = average(dense, bones, &neighbours, SMOOTHING_ROUNDS);
     if let (Some(([a, b], wide_rounds)), Some(raw)) = (split, raw) {
         let (a, b) = (a as usize, b as usize);
         // The two bones' split, averaged over `wide_rounds`; their sum as above.
-        let mut pair: Vec<[f32; 2]> = (0..n)
-            .map(|v| [raw[v * bones + a], raw[v * bones + b]])
+        let pair: Vec<f32> = (0..n)
+            .flat_map(|v| [raw[v * bones + a], raw[v * bones + b]])
             .collect();
-        for _ in 0..wide_rounds {
-            let mut next = pair.clone();
-            for v in 0..n {
-                let nb = &neighbours[v];
-                if nb.is_empty() {
-                    continue;
-                }
-                let inv = 1.0 / nb.len() as f32;
-                for k in 0..2 {
-                    let mean: f32 = nb.iter().map(|&u| pair[u as usize][k]).sum::<f32>() * inv;
-                    next[v][k] = 0.5 * pair[v][k] + 0.5 * mean;
-                }
-            }
-            pair = next;
-        }
+        let pair = average(pair, 2, &neighbours, wide_rounds);
         for v in 0..n {
             let total = dense[v * bones + a] + dense[v * bones + b];
-            let both = pair[v][0] + pair[v][1];
+            let (pa, pb) = (pair[2 * v], pair[2 * v + 1]);
+            let both = pa + pb;
             if both > 1e-6 {
-                dense[v * bones + a] = total * pair[v][0] / both;
-                dense[v * bones + b] = total * pair[v][1] / both;
+                dense[v * bones + a] = total * pa / both;
+                dense[v * bones + b] = total * pb / both;
             }
         }
     }
@@ -180,6 +149,31 @@ pub fn transfer_weights(
         skin.weights.push(w);
     }
     skin
+}
+
+/// `rounds` rounds of neighbour averaging of `field`, `width` values per vertex: each
+/// value becomes half its own and half its neighbours' mean (a vertex without neighbours
+/// keeps its values).
+fn average(mut field: Vec<f32>, width: usize, neighbours: &[Vec<u32>], rounds: usize) -> Vec<f32> {
+    for _ in 0..rounds {
+        let mut next = field.clone();
+        for (v, nb) in neighbours.iter().enumerate() {
+            if nb.is_empty() {
+                continue;
+            }
+            let inv = 1.0 / nb.len() as f32;
+            for j in 0..width {
+                let mean: f32 = nb
+                    .iter()
+                    .map(|&u| field[u as usize * width + j])
+                    .sum::<f32>()
+                    * inv;
+                next[v * width + j] = 0.5 * field[v * width + j] + 0.5 * mean;
+            }
+        }
+        field = next;
+    }
+    field
 }
 
 /// Mesh neighbours of every vertex, sorted.
