@@ -695,6 +695,22 @@ fn the_jeans_thighs_share_the_crotch_over_their_reach() {
     .unwrap();
     assert_eq!(plain.mesh, jeans.mesh);
     assert_eq!(plain.bindings, jeans.bindings);
+    // A bone the body does not have is named.
+    let typo =
+        garment::GarmentDef::from_toml(&text.replace("RightUpLeg", "RightUpLag"), "t").unwrap();
+    let e = garment::build_template(
+        &typo,
+        &default_assets_dir().join(garment::HELPERS_FILE),
+        &canonical,
+        RESOLUTION,
+        String::new(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("skinning split: no bone named RightUpLag"),
+        "{e}"
+    );
     let sk = &model().skeleton;
     let (l, r) = (
         sk.index("LeftUpLeg").unwrap() as u16,

@@ -532,26 +532,8 @@ pub struct WarpArgs {
 /// Stretch shown at the red end of `drape warp --stretch-png` (a fraction).
 const WARP_STRETCH_MAP_MAX: f32 = 0.6;
 
-/// Each vertex's largest edge stretch `l / l0 - 1` of `x` against the template `t` (0 for
-/// edges shorter than in the template).
-fn vertex_stretch(t: &Template, x: &[glam::Vec3]) -> Vec<f32> {
-    let v = &t.mesh.vertices;
-    let mut out = vec![0.0f32; v.len()];
-    for f in &t.mesh.triangles {
-        for k in 0..3 {
-            let (a, b) = (f[k] as usize, f[(k + 1) % 3] as usize);
-            let rest = v[a].distance(v[b]);
-            if rest > 0.0 {
-                let s = (x[a].distance(x[b]) / rest - 1.0).max(0.0);
-                out[a] = out[a].max(s);
-                out[b] = out[b].max(s);
-            }
-        }
-    }
-    out
-}
-
-/// The warp on the posed body, front and side, coloured by [`vertex_stretch`], with a colour
+/// The warp on the posed body, front and side, each vertex coloured by the largest stretch
+/// `l / l0 - 1` of its edges against the template (`drape::vertex_strain`), with a colour
 /// bar in percent.
 fn stretch_map(
     t: &Template,
@@ -559,7 +541,8 @@ fn stretch_map(
     body: &[glam::Vec3],
     body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
-    let percent: Vec<f32> = vertex_stretch(t, &warped.vertices)
+    let cloth = t.cloth(&sim::cloth::SimConfig::default())?;
+    let percent: Vec<f32> = sim::cloth::drape::vertex_strain(&cloth, &warped.vertices)
         .iter()
         .map(|s| s * 100.0)
         .collect();

@@ -47,7 +47,8 @@ pub struct GarmentDef {
 #[serde(deny_unknown_fields)]
 pub struct SkinningDef {
     /// Two bones whose share of the weights is divided between them over a wider reach
-    /// than the other weights are averaged over (trousers: the two thighs).
+    /// than the other weights are averaged over (trousers: the two thighs). None: every
+    /// weight is averaged over [`crate::garment::skin::SMOOTHING_ROUNDS`] rounds.
     pub split: Option<SplitDef>,
 }
 
@@ -64,7 +65,7 @@ pub struct SplitDef {
     pub bones: [String; 2],
     /// The distance over the garment (m) the split is averaged over: `(reach / mean
     /// edge)^2` rounds of neighbour averaging, at least
-    /// [`crate::garment::skin::SMOOTHING_ROUNDS`] (from 0.005 to 0.5).
+    /// [`crate::garment::skin::SMOOTHING_ROUNDS`] and at most 10,000 (from 0.005 to 0.5).
     pub reach: f32,
 }
 

@@ -161,6 +161,27 @@ pub fn build_template(
         friction: def.friction().unwrap_or(default.friction),
         ..default
     };
+    // The split's bones first: a misspelt name fails before the build's relaxation.
+    let split = match def.split() {
+        None => None,
+        Some(sp) => {
+            let mut bones = [0u16; 2];
+            for (b, n) in bones.iter_mut().zip(&sp.bones) {
+                *b = canonical
+                    .model
+                    .skeleton
+                    .index(n)
+                    .map(|i| i as u16)
+                    .ok_or_else(|| {
+                        GarmentError::Definition(format!(
+                            "{}: skinning split: no bone named {n}",
+                            def.name
+                        ))
+                    })?;
+            }
+            Some((bones, sp.reach))
+        }
+    };
     let built = build::build(def, &helpers, canonical, &config, vertices, true)?;
     let parts = build::part_of(def, canonical, &built.mesh.vertices)?;
     let skeleton = &canonical.model.skeleton;
@@ -183,18 +204,6 @@ pub fn build_template(
         .iter()
         .map(|&p| restricted[p as usize].clone())
         .collect();
-    let split = match def.split() {
-        None => None,
-        Some(sp) => {
-            let mut bones = [0u16; 2];
-            for (b, n) in bones.iter_mut().zip(&sp.bones) {
-                *b = skeleton.index(n).map(|i| i as u16).ok_or_else(|| {
-                    GarmentError::Definition(format!("{}: no bone named {n}", def.name))
-                })?;
-            }
-            Some((bones, sp.reach))
-        }
-    };
     let (mesh, skin, bindings) = skin_mesh(built.mesh, canonical, &only, split);
     let a = built.angles;
     Ok(Template {

@@ -26,7 +26,8 @@ pub const SMOOTHING_ROUNDS: usize = 8;
 /// Rounds of neighbour averaging on `garment` that spread a value over about `reach` (m):
 /// `(reach / mean edge length)^2`, at least [`SMOOTHING_ROUNDS`]. `r` rounds spread a value
 /// over about `sqrt(r)` edges, so a reach gives the same blur at every resolution: 0.18 m
-/// is 87 rounds on the 3k jeans (mean edge 19.3 mm) and 291 on the 10k ones (10.6 mm).
+/// is 88 rounds on the 3k jeans (mean edge 19.3 mm) and about 290 on the 10k ones (10.6
+/// mm). At most 10,000.
 pub fn smoothing_rounds(garment: &TriMesh, reach: f32) -> usize {
     let (mut total, mut count) = (0.0f64, 0usize);
     for t in &garment.triangles {
@@ -67,8 +68,8 @@ pub fn bind(points: &[Vec3], body: &BodyCollider) -> Vec<Binding> {
 /// averaged with the mesh neighbours' [`SMOOTHING_ROUNDS`] times (each round: half its own,
 /// half the neighbours' mean). With `split = ([a, b], rounds)` the division between bones
 /// `a` and `b` is then taken from their transferred weights averaged `rounds` times
-/// instead ([`smoothing_rounds`]), their sum kept. Last, the four largest weights are kept
-/// and renormalised.
+/// instead ([`smoothing_rounds`]), their sum kept, except in vertices restricted by `only`.
+/// Last, the four largest weights are kept and renormalised.
 pub fn transfer_weights(
     garment: &TriMesh,
     bindings: &[Binding],
@@ -122,6 +123,10 @@ pub fn transfer_weights(
             .collect();
         let pair = average(pair, 2, &neighbours, wide_rounds);
         for v in 0..n {
+            // A part restricted to some bones keeps its own weights.
+            if only.get(v).is_some_and(|o| !o.is_empty()) {
+                continue;
+            }
             let total = dense[v * bones + a] + dense[v * bones + b];
             let (pa, pb) = (pair[2 * v], pair[2 * v + 1]);
             let both = pa + pb;
