@@ -843,7 +843,7 @@ fn a_drape_that_slides_off_the_body_is_a_failure() {
     };
     assert!(
         line("jeans").contains(
-            "[14 sizes by waist, hips, height, friction 0.8 (0.1 beyond 8 cm of the top opening), 30 substeps, crease contacts]"
+            "[14 sizes by waist, hips, height, friction 0.8 (0.1 beyond 8 cm of the top opening), 30 substeps, crease contacts, weights of LeftUpLeg and RightUpLeg split over 0.18 m]"
         ),
         "{list}"
     );

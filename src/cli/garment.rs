@@ -355,7 +355,13 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                         ", crease contacts"
                     } else {
                         ""
-                    };
+                    }
+                    + &def.split().map_or_else(String::new, |sp| {
+                        format!(
+                            ", weights of {} and {} split over {} m",
+                            sp.bones[0], sp.bones[1], sp.reach
+                        )
+                    });
                 println!(
                     "{name:8} built-in  {} [{graded}{friction}]{}",
                     def.description,
