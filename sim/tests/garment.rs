@@ -685,28 +685,17 @@ fn the_jeans_thighs_share_the_crotch_over_their_reach() {
     assert_ne!(plain_text, text);
     let plain_def = garment::GarmentDef::from_toml(&plain_text, "jeans without it").unwrap();
     assert_eq!(plain_def.split(), None);
-    let plain = garment::build_template(
-        &plain_def,
-        &default_assets_dir().join(garment::HELPERS_FILE),
-        &canonical,
-        RESOLUTION,
-        String::new(),
-    )
-    .unwrap();
+    let helpers = default_assets_dir().join(garment::HELPERS_FILE);
+    let build = |def: &garment::GarmentDef| {
+        garment::build_template(def, &helpers, &canonical, RESOLUTION, String::new())
+    };
+    let plain = build(&plain_def).unwrap();
     assert_eq!(plain.mesh, jeans.mesh);
     assert_eq!(plain.bindings, jeans.bindings);
     // A bone the body does not have is named.
     let typo =
         garment::GarmentDef::from_toml(&text.replace("RightUpLeg", "RightUpLag"), "t").unwrap();
-    let e = garment::build_template(
-        &typo,
-        &default_assets_dir().join(garment::HELPERS_FILE),
-        &canonical,
-        RESOLUTION,
-        String::new(),
-    )
-    .unwrap_err()
-    .to_string();
+    let e = build(&typo).unwrap_err().to_string();
     assert!(
         e.contains("skinning split: no bone named RightUpLag"),
         "{e}"

@@ -535,12 +535,15 @@ pub struct WarpArgs {
     target: BodyOutputArgs,
 }
 
-/// Stretch shown at the red end of `drape warp --stretch-png` (a fraction).
-const WARP_STRETCH_MAP_MAX: f32 = 0.6;
+/// The scale of `drape warp --stretch-png`: 0 to 60% (the trousers' bar counts edges
+/// stretched by over 30%).
+const WARP_STRETCH_SCALE: super::simulate::Scale = super::simulate::Scale {
+    max_percent: 60.0,
+    label: "largest edge stretch of the DQS warp at each vertex (%)",
+};
 
 /// The warp on the posed body, front and side, each vertex coloured by the largest stretch
-/// `l / l0 - 1` of its edges against the template (`drape::vertex_strain`), with a colour
-/// bar in percent.
+/// `l / l0 - 1` of its edges against the template, with a colour bar in percent.
 fn stretch_map(
     t: &Template,
     warped: &TriMesh,
@@ -548,27 +551,8 @@ fn stretch_map(
     body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
     let cloth = t.cloth(&sim::cloth::SimConfig::default())?;
-    let percent: Vec<f32> = sim::cloth::drape::vertex_strain(&cloth, &warped.vertices)
-        .iter()
-        .map(|s| s * 100.0)
-        .collect();
-    let max = WARP_STRETCH_MAP_MAX * 100.0;
-    let img = super::simulate::coloured_picture(
-        &warped.vertices,
-        &warped.triangles,
-        &percent,
-        max,
-        body,
-        body_triangles,
-        &eval::render::RenderOptions::default(),
-    )?;
-    super::simulate::with_bar(img, |width| {
-        eval::plot::colour_bar(
-            f64::from(max),
-            "largest edge stretch of the DQS warp at each vertex (%)",
-            width,
-        )
-    })
+    let percent = super::simulate::strain_percent(&cloth, &warped.vertices);
+    super::simulate::coloured_map(warped, &percent, &WARP_STRETCH_SCALE, body, body_triangles)
 }
 
 /// A shaped, posed body and the files a garment on it goes to (`drape warp`, `drape
@@ -1329,7 +1313,7 @@ fn gallery(
     }
     let mut grid = eval::render::grid(&images, 3, opts.background);
     if strain {
-        let bar = super::simulate::strain_bar(grid.width.min(700));
+        let bar = super::simulate::STRAIN_SCALE.bar(grid.width.min(700));
         grid = eval::render::stack(&[grid, bar], [255, 255, 255]);
     }
     sim::io::write_all_or_nothing(&[(output, &eval::render::encode_png(&grid)?)])?;

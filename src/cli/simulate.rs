@@ -289,26 +289,34 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
     }
 }
 
-/// Strain shown at the red end of a strain map (a fraction).
-const STRAIN_MAP_MAX: f32 = 0.10;
-
-/// The strain maps' colour bar, `width` pixels wide.
-pub(crate) fn strain_bar(width: u32) -> eval::render::Image {
-    eval::plot::colour_bar(
-        (STRAIN_MAP_MAX * 100.0) as f64,
-        "largest edge strain at each vertex (%)",
-        width,
-    )
+/// A colour scale of a map: 0 at blue, `max_percent` and more at red, and its bar's label.
+pub(crate) struct Scale {
+    /// The value at the red end (percent).
+    pub max_percent: f32,
+    /// What the colour bar says.
+    pub label: &'static str,
 }
 
+impl Scale {
+    /// The scale's colour bar, `width` pixels wide.
+    pub(crate) fn bar(&self, width: u32) -> eval::render::Image {
+        eval::plot::colour_bar(f64::from(self.max_percent), self.label, width)
+    }
+}
+
+/// The strain maps' scale: 0 to 10% edge strain.
+pub(crate) const STRAIN_SCALE: Scale = Scale {
+    max_percent: 10.0,
+    label: "largest edge strain at each vertex (%)",
+};
+
 /// The garment `x` (faces `triangles`) on the body, front and side, each garment vertex
-/// coloured by its value in `percent` on a scale from 0 to `max_percent` (more is red; no
-/// colour bar).
+/// coloured by its value in `percent` on `scale` (no colour bar).
 pub(crate) fn coloured_picture(
     x: &[glam::Vec3],
     triangles: &[[u32; 3]],
     percent: &[f32],
-    max_percent: f32,
+    scale: &Scale,
     body: &[glam::Vec3],
     body_triangles: &[[u32; 3]],
     opts: &eval::render::RenderOptions,
@@ -316,7 +324,7 @@ pub(crate) fn coloured_picture(
     use eval::render::{BODY_COLOUR, GARMENT_COLOUR, Layer};
     let colours: Vec<[u8; 3]> = percent
         .iter()
-        .map(|p| eval::render::error_colour(p / max_percent))
+        .map(|p| eval::render::error_colour(p / scale.max_percent))
         .collect();
     Ok(eval::render::render(
         &[
@@ -327,20 +335,41 @@ pub(crate) fn coloured_picture(
     )?)
 }
 
-/// `img` with `bar` below it, as a PNG.
-pub(crate) fn with_bar(
-    img: eval::render::Image,
-    bar: impl FnOnce(u32) -> eval::render::Image,
+/// [`coloured_picture`] of `garment` with the default views and `scale`'s colour bar below,
+/// as a PNG: `drape sim --strain-png`, `drape warp --stretch-png`.
+pub(crate) fn coloured_map(
+    garment: &TriMesh,
+    percent: &[f32],
+    scale: &Scale,
+    body: &[glam::Vec3],
+    body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
-    let bar = bar(img.width.min(700));
+    let img = coloured_picture(
+        &garment.vertices,
+        &garment.triangles,
+        percent,
+        scale,
+        body,
+        body_triangles,
+        &eval::render::RenderOptions::default(),
+    )?;
+    let bar = scale.bar(img.width.min(700));
     Ok(eval::render::encode_png(&eval::render::stack(
         &[img, bar],
         [255, 255, 255],
     ))?)
 }
 
+/// Each vertex's largest edge strain `l / l0 - 1` against `cloth`'s rest shape, in percent.
+pub(crate) fn strain_percent(cloth: &ClothModel, x: &[glam::Vec3]) -> Vec<f32> {
+    drape::vertex_strain(cloth, x)
+        .iter()
+        .map(|s| s * 100.0)
+        .collect()
+}
+
 /// The drape `x` (faces `triangles`) on the body, front and side, each garment vertex
-/// coloured by the largest strain of its edges, 0 to `STRAIN_MAP_MAX` (no colour bar).
+/// coloured by the largest strain of its edges on [`STRAIN_SCALE`] (no colour bar).
 pub(crate) fn strain_picture(
     cloth: &ClothModel,
     x: &[glam::Vec3],
@@ -349,15 +378,12 @@ pub(crate) fn strain_picture(
     body_triangles: &[[u32; 3]],
     opts: &eval::render::RenderOptions,
 ) -> anyhow::Result<eval::render::Image> {
-    let percent: Vec<f32> = drape::vertex_strain(cloth, x)
-        .iter()
-        .map(|s| s * 100.0)
-        .collect();
+    let percent = strain_percent(cloth, x);
     coloured_picture(
         x,
         triangles,
         &percent,
-        STRAIN_MAP_MAX * 100.0,
+        &STRAIN_SCALE,
         body,
         body_triangles,
         opts,
@@ -372,13 +398,6 @@ fn strain_map(
     body: &[glam::Vec3],
     body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
-    let img = strain_picture(
-        cloth,
-        &draped.vertices,
-        &draped.triangles,
-        body,
-        body_triangles,
-        &eval::render::RenderOptions::default(),
-    )?;
-    with_bar(img, strain_bar)
+    let percent = strain_percent(cloth, &draped.vertices);
+    coloured_map(draped, &percent, &STRAIN_SCALE, body, body_triangles)
 }

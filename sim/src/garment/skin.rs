@@ -29,16 +29,9 @@ pub const SMOOTHING_ROUNDS: usize = 8;
 /// is 88 rounds on the 3k jeans (mean edge 19.3 mm) and about 290 on the 10k ones (10.6
 /// mm). At most 10,000.
 pub fn smoothing_rounds(garment: &TriMesh, reach: f32) -> usize {
-    let (mut total, mut count) = (0.0f64, 0usize);
-    for t in &garment.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
-            total += f64::from(garment.vertices[a].distance(garment.vertices[b]));
-            count += 1;
-        }
-    }
-    let edge = (total / count.max(1) as f64).max(1e-4);
-    let rounds = (f64::from(reach) / edge).powi(2).ceil() as usize;
+    let rounds = (f64::from(reach) / f64::from(garment.mean_side()))
+        .powi(2)
+        .ceil() as usize;
     rounds.clamp(SMOOTHING_ROUNDS, 10_000)
 }
 
@@ -113,14 +106,16 @@ pub fn transfer_weights(
     }
 
     let neighbours = neighbours(garment);
-    let raw = split.map(|_| dense.clone());
+    // The split bones' transferred weights, before the averaging below.
+    let pair: Option<Vec<f32>> = split.map(|([a, b], _)| {
+        (0..n)
+            .flat_map(|v| [dense[v * bones + a as usize], dense[v * bones + b as usize]])
+            .collect()
+    });
     let mut dense = average(dense, bones, &neighbours, SMOOTHING_ROUNDS);
-    if let (Some(([a, b], wide_rounds)), Some(raw)) = (split, raw) {
+    if let (Some(([a, b], wide_rounds)), Some(pair)) = (split, pair) {
         let (a, b) = (a as usize, b as usize);
         // The two bones' split, averaged over `wide_rounds`; their sum as above.
-        let pair: Vec<f32> = (0..n)
-            .flat_map(|v| [raw[v * bones + a], raw[v * bones + b]])
-            .collect();
         let pair = average(pair, 2, &neighbours, wide_rounds);
         for v in 0..n {
             // A part restricted to some bones keeps its own weights.

@@ -338,15 +338,7 @@ impl Template {
                     .sum()
             })
             .collect();
-        let (mut total, mut count) = (0.0f32, 0usize);
-        for t in &self.mesh.triangles {
-            for k in 0..3 {
-                let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
-                total += self.mesh.vertices[a].distance(self.mesh.vertices[b]);
-                count += 1;
-            }
-        }
-        let edge = (total / count.max(1) as f32).max(1e-4);
+        let edge = self.mesh.mean_side();
         let rounds = ((RESHAPE_SMOOTHING_REACH / edge).powi(2).ceil() as usize).min(2_000);
         let moves = super::skin::smooth(&self.mesh, moves, rounds);
         self.mesh

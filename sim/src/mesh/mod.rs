@@ -28,6 +28,20 @@ pub struct TriMesh {
 }
 
 impl TriMesh {
+    /// Mean length of the triangles' sides (m; an edge between two triangles counts
+    /// twice), at least 0.1 mm: the step that neighbour averaging spreads a value by.
+    pub fn mean_side(&self) -> f32 {
+        let (mut total, mut count) = (0.0f32, 0usize);
+        for t in &self.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
+                total += self.vertices[a].distance(self.vertices[b]);
+                count += 1;
+            }
+        }
+        (total / count.max(1) as f32).max(1e-4)
+    }
+
     /// Signed enclosed volume (m^3) by the divergence theorem: positive for a closed mesh
     /// whose triangles wind counter-clockwise seen from outside.
     pub fn signed_volume(&self) -> f32 {
