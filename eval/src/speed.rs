@@ -107,6 +107,14 @@ pub struct SpeedReport {
     pub flops_by_variant: Vec<(String, f64)>,
     /// Parameters of the network.
     pub parameters: usize,
+    /// Time (s) to make the template's move under each of the body model's shape targets,
+    /// once per template before any drape is timed (the DQS warp's reshape sums them;
+    /// 0 in reports from before session 48, whose warps smoothed each body's moves).
+    #[serde(default)]
+    pub shape_moves: f64,
+    /// How many shape targets that was.
+    #[serde(default)]
+    pub shape_targets: usize,
 }
 
 impl SpeedReport {
@@ -371,6 +379,9 @@ pub fn measure(
         .shape(&ShapeParams::default())
         .map_err(|e| EvalError::Invalid(e.to_string()))?;
     let rows = crate::evaluate::first_rows(data, opts.split, opts.samples)?;
+    let t0 = Instant::now();
+    let shape_targets = template.make_shape_moves(model);
+    let shape_moves = t0.elapsed().as_secs_f64();
     let mut samples = Vec::new();
     let mut bodies_of_rows = Vec::with_capacity(rows.len());
     for row in &rows {
@@ -477,5 +488,7 @@ pub fn measure(
         flops: net.forward_flops(&net.config.model),
         flops_by_variant,
         parameters: net.parameters(),
+        shape_moves,
+        shape_targets,
     })
 }

@@ -169,6 +169,85 @@ fn the_warp_onto_the_canonical_body_at_rest_is_the_template() {
     }
 }
 
+/// The reshape as written in its documentation: each vertex's bound body point's move,
+/// smoothed over the garment, added to the template.
+fn reshape_by_smoothing(t: &Template, a: &[Vec3], b: &[Vec3]) -> Vec<Vec3> {
+    let tris = &model().triangles;
+    let moves: Vec<Vec3> = t
+        .bindings
+        .iter()
+        .map(|bd| {
+            let tri = tris[bd.triangle as usize];
+            (0..3)
+                .map(|k| (b[tri[k] as usize] - a[tri[k] as usize]) * bd.bary[k])
+                .sum()
+        })
+        .collect();
+    let rounds = ((garment::template::RESHAPE_SMOOTHING_REACH / t.mesh.mean_side())
+        .powi(2)
+        .ceil() as usize)
+        .min(2_000);
+    let moves = garment::skin::smooth(&t.mesh, moves, rounds);
+    t.mesh
+        .vertices
+        .iter()
+        .zip(moves)
+        .map(|(p, m)| *p + m)
+        .collect()
+}
+
+#[test]
+fn the_reshape_by_shape_targets_equals_smoothing_the_bodys_moves() {
+    // The reshape sums each shape target's smoothed move instead of smoothing the body's
+    // moves: the same up to float rounding, for bodies far from the canonical one, and for
+    // a body that no shape parameters make (its vertices edited), which it smooths itself.
+    let canonical = model().shape(&Default::default()).unwrap();
+    let bodies = [
+        sim::body::ShapeParams {
+            gender: 1.0,
+            weight: 1.0,
+            height: 0.9,
+            ..Default::default()
+        },
+        sim::body::ShapeParams {
+            gender: 0.0,
+            age: 0.9,
+            muscle: 0.1,
+            proportions: 0.2,
+            ..Default::default()
+        },
+    ];
+    for t in built() {
+        for (i, params) in bodies.iter().enumerate() {
+            let mut shaped = model().shape(params).unwrap();
+            if i == 1 {
+                // Legs 2 cm longer than its parameters make them.
+                for p in shaped.vertices.iter_mut().filter(|p| p.y < 0.8) {
+                    p.y -= 0.025 * (0.8 - p.y);
+                }
+            }
+            let want = reshape_by_smoothing(t, &canonical.vertices, &shaped.vertices);
+            let got = t.reshape(&canonical, &shaped);
+            let moved = want
+                .iter()
+                .zip(&t.mesh.vertices)
+                .map(|(a, b)| a.distance(*b))
+                .fold(0.0f32, f32::max);
+            let worst = want
+                .iter()
+                .zip(&got)
+                .map(|(a, b)| a.distance(*b))
+                .fold(0.0f32, f32::max);
+            assert!(moved > 0.02, "{} body {i}: moved {moved} m", t.meta.name);
+            assert!(
+                worst < 2e-6,
+                "{} body {i}: {worst} m from smoothing the moves",
+                t.meta.name
+            );
+        }
+    }
+}
+
 #[test]
 fn the_warp_follows_shape_and_pose() {
     // A taller body: the jeans' hems go down with the ankles.

@@ -344,6 +344,11 @@ fn bench_speedup(
         r.samples.len()
     );
     println!(
+        "  made once per template, before any of the above: its moves under the body's {} shape targets, {:.0} ms",
+        r.shape_targets,
+        r.shape_moves * 1e3
+    );
+    println!(
         "  {} batch 1                {:>9.1} ms   speed-up {:>6.1}x over PBS, {:>5.1}x over PBS-dagger",
         r.network,
         one * 1e3,

@@ -128,8 +128,7 @@ impl BodyModel {
         params.validate()?;
         let mut vertices = self.base_vertices.clone();
         let mut joints = self.joint_base.clone();
-        for t in &self.targets {
-            let w: f32 = t.factors.iter().map(|f| params.target_weight(f)).sum();
+        for (t, w) in self.targets.iter().zip(self.target_weights(params)) {
             if w == 0.0 {
                 continue;
             }
@@ -148,6 +147,15 @@ impl BodyModel {
             joints,
             rest_frames,
         })
+    }
+
+    /// The weight `w_t(params)` of each shape target in [`Self::shape`]: the sum over the
+    /// target's files of the product of their axis factors.
+    pub fn target_weights(&self, params: &ShapeParams) -> Vec<f32> {
+        self.targets
+            .iter()
+            .map(|t| t.factors.iter().map(|f| params.target_weight(f)).sum())
+            .collect()
     }
 }
 

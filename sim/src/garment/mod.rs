@@ -235,6 +235,7 @@ pub fn build_template(
         mesh,
         skin,
         bindings,
+        shape_moves: Default::default(),
     })
 }
 
@@ -655,6 +656,7 @@ pub fn grade(
         mesh,
         skin: base.skin.clone(),
         bindings: base.bindings.clone(),
+        shape_moves: Default::default(),
     })
 }
 
@@ -732,5 +734,6 @@ pub fn import_mesh(
         mesh,
         skin,
         bindings,
+        shape_moves: Default::default(),
     })
 }

@@ -7,6 +7,7 @@
 //! `bind_bary` f32 [V, 3]. Metadata key `drape`: JSON [`TemplateMeta`].
 
 use std::path::Path;
+use std::sync::OnceLock;
 
 use glam::Vec3;
 use safetensors::tensor::{Dtype, SafeTensors};
@@ -15,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use super::GarmentError;
 use super::skin::Binding;
 use crate::body::skinning::{self, SkinWeights};
-use crate::body::{PosedBody, ShapeParams, ShapedBody};
+use crate::body::{BodyModel, PosedBody, ShapeParams, ShapedBody};
 use crate::cloth::{ClothModel, SimConfig, SimError};
 use crate::mesh::TriMesh;
 
@@ -87,7 +88,29 @@ pub struct Template {
     pub skin: SkinWeights,
     /// Closest canonical body point of each vertex.
     pub bindings: Vec<Binding>,
+    /// Each body shape target's move of the template, made on first use by
+    /// [`Self::reshape`]. It assumes `mesh` and `bindings` are not edited after that.
+    pub(crate) shape_moves: ShapeMoves,
 }
+
+/// The template's move under each of the body model's shape targets, for
+/// [`Template::reshape`]: one slot per target, filled the first time a body needs it.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct ShapeMoves(OnceLock<Vec<OnceLock<TargetMove>>>);
+
+/// One shape target's unit move of the template: its bound points' deltas, and those
+/// smoothed as [`Template::reshape`] smooths.
+#[derive(Debug, Clone)]
+struct TargetMove {
+    bound: Vec<Vec3>,
+    smoothed: Vec<Vec3>,
+}
+
+/// How far (m) a body may be from its shape parameters' body, at the template's bound
+/// points, before [`Template::reshape`] smooths the difference itself: below it, the
+/// difference (float rounding) moves no vertex by more than this, since averaging never
+/// makes a field larger.
+const RESHAPE_RESIDUAL: f32 = 1e-6;
 
 fn f32s(v: impl IntoIterator<Item = f32>) -> Vec<u8> {
     v.into_iter().flat_map(f32::to_le_bytes).collect()
@@ -315,6 +338,7 @@ impl Template {
             mesh: TriMesh::new(vertices, triangles),
             skin,
             bindings,
+            shape_moves: ShapeMoves::default(),
         })
     }
 
@@ -324,29 +348,118 @@ impl Template {
     /// over the garment (neighbour averaging reaching about [`RESHAPE_SMOOTHING_REACH`]), so that
     /// neighbours bound to different limbs (a skirt's front between the legs) move together.
     pub fn reshape(&self, canonical: &ShapedBody<'_>, shaped: &ShapedBody<'_>) -> Vec<Vec3> {
-        let tris = &canonical.model.triangles;
-        let moves: Vec<Vec3> = self
-            .bindings
+        // The moves are linear in the bodies' difference, which is a weighted sum of the
+        // model's shape targets, and so is their smoothing: each target's smoothed move is
+        // made once and a body's moves are the sum of those, weighted by how much more of
+        // each target it has than the canonical body. The rounds, not the sum, were the
+        // warp's cost (docs/bench.md).
+        let model = canonical.model;
+        let (a, b) = (&canonical.vertices, &shaped.vertices);
+        let mut residual = self.bound(model, |i| b[i] - a[i]);
+        let mut moves = vec![Vec3::ZERO; residual.len()];
+        let slots = self.shape_slots(model);
+        if slots.len() == model.targets.len() {
+            let (wa, wb) = (
+                model.target_weights(&canonical.params),
+                model.target_weights(&shaped.params),
+            );
+            let active: Vec<(usize, f32)> = wa
+                .iter()
+                .zip(&wb)
+                .map(|(a, b)| b - a)
+                .enumerate()
+                .filter(|&(_, d)| d != 0.0)
+                .collect();
+            let needed: Vec<usize> = active.iter().map(|&(t, _)| t).collect();
+            self.make_target_moves(model, &needed);
+            for (t, d) in active {
+                let m = slots[t].get().expect("made above");
+                for ((s, r), (&ms, &mb)) in moves
+                    .iter_mut()
+                    .zip(residual.iter_mut())
+                    .zip(m.smoothed.iter().zip(&m.bound))
+                {
+                    *s += d * ms;
+                    *r -= d * mb;
+                }
+            }
+        }
+        // What the targets do not explain (a body not made by `BodyModel::shape`) is
+        // smoothed as it is.
+        if residual
             .iter()
-            .map(|b| {
-                let t = tris[b.triangle as usize];
-                (0..3)
-                    .map(|k| {
-                        let i = t[k] as usize;
-                        (shaped.vertices[i] - canonical.vertices[i]) * b.bary[k]
-                    })
-                    .sum()
-            })
-            .collect();
-        let edge = self.mesh.mean_side();
-        let rounds = ((RESHAPE_SMOOTHING_REACH / edge).powi(2).ceil() as usize).min(2_000);
-        let moves = super::skin::smooth(&self.mesh, moves, rounds);
+            .any(|r| r.abs().max_element() > RESHAPE_RESIDUAL)
+        {
+            let rest = super::skin::smooth(&self.mesh, residual, self.reshape_rounds());
+            for (m, r) in moves.iter_mut().zip(rest) {
+                *m += r;
+            }
+        }
         self.mesh
             .vertices
             .iter()
             .zip(moves)
             .map(|(&p, m)| p + m)
             .collect()
+    }
+
+    /// Makes the moves of all the model's shape targets now, instead of as bodies need them
+    /// in [`Self::reshape`] (each about one reshape's smoothing), so that no later warp
+    /// includes them. Returns how many targets there are.
+    pub fn make_shape_moves(&self, model: &BodyModel) -> usize {
+        let all: Vec<usize> = (0..model.targets.len()).collect();
+        self.make_target_moves(model, &all);
+        all.len()
+    }
+
+    /// One slot per shape target of `model` (made empty on first use).
+    fn shape_slots(&self, model: &BodyModel) -> &[OnceLock<TargetMove>] {
+        self.shape_moves
+            .0
+            .get_or_init(|| model.targets.iter().map(|_| OnceLock::new()).collect())
+    }
+
+    /// Fills the slots of `targets` not yet made, side by side.
+    fn make_target_moves(&self, model: &BodyModel, targets: &[usize]) {
+        use rayon::prelude::*;
+        let slots = self.shape_slots(model);
+        if slots.len() != model.targets.len() {
+            return;
+        }
+        targets.par_iter().for_each(|&t| {
+            slots[t].get_or_init(|| self.target_move(model, t));
+        });
+    }
+
+    /// The rounds of [`Self::reshape`]'s smoothing: reaching about
+    /// [`RESHAPE_SMOOTHING_REACH`] over the template's mean edge.
+    fn reshape_rounds(&self) -> usize {
+        let edge = self.mesh.mean_side();
+        ((RESHAPE_SMOOTHING_REACH / edge).powi(2).ceil() as usize).min(2_000)
+    }
+
+    /// A body field (per body vertex) at each template vertex's bound point.
+    fn bound(&self, model: &BodyModel, field: impl Fn(usize) -> Vec3) -> Vec<Vec3> {
+        let tris = &model.triangles;
+        self.bindings
+            .iter()
+            .map(|b| {
+                let t = tris[b.triangle as usize];
+                (0..3).map(|k| field(t[k] as usize) * b.bary[k]).sum()
+            })
+            .collect()
+    }
+
+    /// Shape target `t`'s unit move of the template, bound and smoothed.
+    fn target_move(&self, model: &BodyModel, t: usize) -> TargetMove {
+        let target = &model.targets[t];
+        let mut delta = vec![Vec3::ZERO; model.base_vertices.len()];
+        for (&i, &d) in target.indices.iter().zip(&target.deltas) {
+            delta[i as usize] += d;
+        }
+        let bound = self.bound(model, |i| delta[i]);
+        let smoothed = super::skin::smooth(&self.mesh, bound.clone(), self.reshape_rounds());
+        TargetMove { bound, smoothed }
     }
 
     /// The DQS warp `M = dqs(M0, body)` of the paper: the template reshaped to the body
