@@ -169,33 +169,6 @@ fn the_warp_onto_the_canonical_body_at_rest_is_the_template() {
     }
 }
 
-/// The reshape as written in its documentation: each vertex's bound body point's move,
-/// smoothed over the garment, added to the template.
-fn reshape_by_smoothing(t: &Template, a: &[Vec3], b: &[Vec3]) -> Vec<Vec3> {
-    let tris = &model().triangles;
-    let moves: Vec<Vec3> = t
-        .bindings
-        .iter()
-        .map(|bd| {
-            let tri = tris[bd.triangle as usize];
-            (0..3)
-                .map(|k| (b[tri[k] as usize] - a[tri[k] as usize]) * bd.bary[k])
-                .sum()
-        })
-        .collect();
-    let rounds = ((garment::template::RESHAPE_SMOOTHING_REACH / t.mesh.mean_side())
-        .powi(2)
-        .ceil() as usize)
-        .min(2_000);
-    let moves = garment::skin::smooth(&t.mesh, moves, rounds);
-    t.mesh
-        .vertices
-        .iter()
-        .zip(moves)
-        .map(|(p, m)| *p + m)
-        .collect()
-}
-
 #[test]
 fn the_reshape_by_shape_targets_equals_smoothing_the_bodys_moves() {
     // The reshape sums each shape target's smoothed move instead of smoothing the body's
@@ -226,7 +199,7 @@ fn the_reshape_by_shape_targets_equals_smoothing_the_bodys_moves() {
                     p.y -= 0.025 * (0.8 - p.y);
                 }
             }
-            let want = reshape_by_smoothing(t, &canonical.vertices, &shaped.vertices);
+            let want = t.reshape_by_smoothing(&canonical, &shaped);
             let got = t.reshape(&canonical, &shaped);
             let moved = want
                 .iter()

@@ -617,7 +617,8 @@ pub fn grade(
     let canonical = model.shape(&ShapeParams::default())?;
     let reference = model.shape(&size.shape)?;
     let mut mesh = base.mesh.clone();
-    mesh.vertices = base.reshape(&canonical, &reference);
+    // Bit for bit the reshape every size was graded with before session 48.
+    mesh.vertices = base.reshape_by_smoothing(&canonical, &reference);
     // Only vertices inside the body are moved out (onto its surface), and the relaxation
     // runs without gravity: the base template already hangs as it does under gravity and
     // sits where the body holds it. Pushing it out to the build's clearance and letting it
