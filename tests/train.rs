@@ -523,6 +523,9 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         assert!(s[k].as_f64().unwrap() > 0.0, "{k}: {s}");
     }
     assert!(r["batched_per_drape"].as_f64().unwrap() > 0.0 && r["flops"].as_f64().unwrap() > 1e6);
+    // The warp's shape moves are made before any drape is timed, and their cost reported.
+    assert_eq!(r["shape_targets"], 142, "{r}");
+    assert!(r["shape_moves"].as_f64().unwrap() > 0.0, "{r}");
 
     // drape bench predict at the run's widths on the same 3k T-shirt: its GFLOPs column is
     // the speed-up's count, and its rate is that count over the network's time.
@@ -548,6 +551,14 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     // vertices, batch, warp, inputs, network ms/b, network ms/s, ms/drape, GFLOPs, GFLOP/s
     assert_eq!(row.len(), 9, "{text}");
     assert_eq!((row[0], row[1]), (2967.0, 1.0), "{text}");
+    // Sampled bodies, so the warp reshapes (its shape moves made once, beforehand).
+    assert!(row[2] > 0.0, "{text}");
+    assert!(
+        text.contains(
+            "2967 vertices: the template's moves under the body's 142 shape targets, made once"
+        ),
+        "{text}"
+    );
     let gflops = r["flops"].as_f64().unwrap() / 1e9;
     assert!(
         (row[7] - gflops).abs() < 6e-4,

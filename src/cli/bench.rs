@@ -159,7 +159,7 @@ fn bench_predict(
         workers
     };
     println!(
-        "{garment}, default body, poses random:1..={most}; {threads} threads; a batch's drapes shared among {shared} worker{}; median of {repeats} runs after a warm-up",
+        "{garment}, bodies of the default shape ranges and poses random:1..={most}; {threads} threads; a batch's drapes shared among {shared} worker{}; median of {repeats} runs after a warm-up",
         if shared == 1 { "" } else { "s" }
     );
     println!(
@@ -177,18 +177,26 @@ fn bench_predict(
     );
     for &res in resolutions {
         let t = super::garment::template(ctx, garment, Some(res), &model)?;
+        // Made once per template, as `bench speedup` does, so that no timed warp makes them.
+        let t0 = std::time::Instant::now();
+        let targets = t.make_shape_moves(&model);
+        println!(
+            "{} vertices: the template's moves under the body's {targets} shape targets, made once: {:.0} ms",
+            t.mesh.vertices.len(),
+            t0.elapsed().as_secs_f64() * 1e3
+        );
         let mut samples = Vec::with_capacity(most);
         let mut warp = Vec::with_capacity(most);
         for i in 1..=most {
+            use dataset::sampling::{ShapeRanges, rng, shape_seed};
+            let shape = ShapeRanges::default().sample(&mut rng(shape_seed(i as u64)));
+            let shaped = model.shape(&shape)?;
             let resolved = super::pose_spec::resolve(&format!("random:{i}"), &canonical, &library)?;
-            let posed = canonical.pose(&resolved.pose);
+            let posed = shaped.pose(&resolved.pose);
             let t0 = std::time::Instant::now();
-            let warped = t.warp(&canonical, &canonical, &posed);
+            let warped = t.warp(&canonical, &shaped, &posed);
             warp.push(t0.elapsed().as_secs_f64());
-            let p = learn::data::body_params(
-                &ShapeParams::default().values(),
-                &resolved.pose.rotations,
-            );
+            let p = learn::data::body_params(&shape.values(), &resolved.pose.rotations);
             samples.push((posed.vertices, resolved.pose.root_translation, p, warped));
         }
         let warp = median(warp);
