@@ -542,19 +542,6 @@ const WARP_STRETCH_SCALE: super::simulate::Scale = super::simulate::Scale {
     label: "largest edge stretch of the DQS warp at each vertex (%)",
 };
 
-/// The warp on the posed body, front and side, each vertex coloured by the largest stretch
-/// `l / l0 - 1` of its edges against the template, with a colour bar in percent.
-fn stretch_map(
-    t: &Template,
-    warped: &TriMesh,
-    body: &[glam::Vec3],
-    body_triangles: &[[u32; 3]],
-) -> anyhow::Result<Vec<u8>> {
-    let cloth = t.cloth(&sim::cloth::SimConfig::default())?;
-    let percent = super::simulate::strain_percent(&cloth, &warped.vertices);
-    super::simulate::coloured_map(warped, &percent, &WARP_STRETCH_SCALE, body, body_triangles)
-}
-
 /// A shaped, posed body and the files a garment on it goes to (`drape warp`, `drape
 /// predict`).
 #[derive(Debug, Args)]
@@ -599,7 +586,14 @@ pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
     let stretch = match &args.stretch_png {
         Some(p) => Some((
             p.as_path(),
-            stretch_map(&t, &warped, &posed.vertices, &model.triangles)?,
+            // The warp's stretch against the template, on the stretch scale.
+            super::simulate::strain_map(
+                &t.cloth(&sim::cloth::SimConfig::default())?,
+                &warped,
+                &WARP_STRETCH_SCALE,
+                &posed.vertices,
+                &model.triangles,
+            )?,
         )),
         None => None,
     };

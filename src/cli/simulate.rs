@@ -204,7 +204,13 @@ pub fn run(args: SimArgs, ctx: &Context) -> anyhow::Result<()> {
         _ => None,
     };
     let strain_png = match (&args.strain_png, &posed) {
-        (Some(_), Some(body)) => Some(strain_map(&cloth, &draped, body, &model.triangles)?),
+        (Some(_), Some(body)) => Some(strain_map(
+            &cloth,
+            &draped,
+            &STRAIN_SCALE,
+            body,
+            &model.triangles,
+        )?),
         _ => None,
     };
     let mut json = serde_json::to_value(r)?;
@@ -336,8 +342,8 @@ pub(crate) fn coloured_picture(
 }
 
 /// [`coloured_picture`] of `garment` with the default views and `scale`'s colour bar below,
-/// as a PNG: `drape sim --strain-png`, `drape warp --stretch-png`.
-pub(crate) fn coloured_map(
+/// as a PNG.
+fn coloured_map(
     garment: &TriMesh,
     percent: &[f32],
     scale: &Scale,
@@ -361,7 +367,7 @@ pub(crate) fn coloured_map(
 }
 
 /// Each vertex's largest edge strain `l / l0 - 1` against `cloth`'s rest shape, in percent.
-pub(crate) fn strain_percent(cloth: &ClothModel, x: &[glam::Vec3]) -> Vec<f32> {
+fn strain_percent(cloth: &ClothModel, x: &[glam::Vec3]) -> Vec<f32> {
     drape::vertex_strain(cloth, x)
         .iter()
         .map(|s| s * 100.0)
@@ -390,14 +396,16 @@ pub(crate) fn strain_picture(
     )
 }
 
-/// The drape on the body, front and side, each garment vertex coloured by the largest
-/// strain of its edges, with a colour bar in percent.
-fn strain_map(
+/// `garment` on the body, front and side, each vertex coloured by the largest strain of its
+/// edges against `cloth`'s rest shape on `scale`, with its colour bar in percent: `drape sim
+/// --strain-png` (the drape) and `drape warp --stretch-png` (the warp).
+pub(crate) fn strain_map(
     cloth: &ClothModel,
-    draped: &TriMesh,
+    garment: &TriMesh,
+    scale: &Scale,
     body: &[glam::Vec3],
     body_triangles: &[[u32; 3]],
 ) -> anyhow::Result<Vec<u8>> {
-    let percent = strain_percent(cloth, &draped.vertices);
-    coloured_map(draped, &percent, &STRAIN_SCALE, body, body_triangles)
+    let percent = strain_percent(cloth, &garment.vertices);
+    coloured_map(garment, &percent, scale, body, body_triangles)
 }
