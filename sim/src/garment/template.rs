@@ -7,7 +7,7 @@
 //! `bind_bary` f32 [V, 3]. Metadata key `drape`: JSON [`TemplateMeta`].
 
 use std::path::Path;
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 use glam::Vec3;
 use safetensors::tensor::{Dtype, SafeTensors};
@@ -95,8 +95,16 @@ pub struct Template {
 
 /// The template's move under each of the body model's shape targets, for
 /// [`Template::reshape`]: one slot per target, filled the first time a body needs it.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct ShapeMoves(OnceLock<Vec<OnceLock<TargetMove>>>);
+/// The lock lets one caller make the missing moves while others wait, rather than all
+/// making the same ones.
+#[derive(Debug, Default)]
+pub(crate) struct ShapeMoves(OnceLock<Vec<OnceLock<TargetMove>>>, Mutex<()>);
+
+impl Clone for ShapeMoves {
+    fn clone(&self) -> Self {
+        Self(self.0.clone(), Mutex::new(()))
+    }
+}
 
 /// One shape target's unit move of the template: its bound points' deltas, and those
 /// smoothed as [`Template::reshape`] smooths.
@@ -444,16 +452,28 @@ impl Template {
             .get_or_init(|| model.targets.iter().map(|_| OnceLock::new()).collect())
     }
 
-    /// Fills the slots of `targets` not yet made, side by side.
+    /// Fills the slots of `targets` not yet made, their smoothing done together
+    /// ([`super::skin::smooth_many`]).
     fn make_target_moves(&self, model: &BodyModel, targets: &[usize]) {
-        use rayon::prelude::*;
         let slots = self.shape_slots(model);
-        if slots.len() != model.targets.len() {
+        if slots.len() != model.targets.len() || targets.iter().all(|&t| slots[t].get().is_some()) {
             return;
         }
-        targets.par_iter().for_each(|&t| {
-            slots[t].get_or_init(|| self.target_move(model, t));
-        });
+        let _making = self.shape_moves.1.lock().unwrap_or_else(|e| e.into_inner());
+        let missing: Vec<usize> = targets
+            .iter()
+            .copied()
+            .filter(|&t| slots[t].get().is_none())
+            .collect();
+        let bound: Vec<Vec<Vec3>> = missing
+            .iter()
+            .map(|&t| self.target_bound(model, t))
+            .collect();
+        let smoothed = super::skin::smooth_many(&self.mesh, bound.clone(), self.reshape_rounds());
+        for ((t, bound), smoothed) in missing.into_iter().zip(bound).zip(smoothed) {
+            // Only this caller fills slots while it holds the lock.
+            let _ = slots[t].set(TargetMove { bound, smoothed });
+        }
     }
 
     /// The rounds of [`Self::reshape`]'s smoothing: reaching about
@@ -475,16 +495,14 @@ impl Template {
             .collect()
     }
 
-    /// Shape target `t`'s unit move of the template, bound and smoothed.
-    fn target_move(&self, model: &BodyModel, t: usize) -> TargetMove {
+    /// Shape target `t`'s unit move at the template's bound points (before smoothing).
+    fn target_bound(&self, model: &BodyModel, t: usize) -> Vec<Vec3> {
         let target = &model.targets[t];
         let mut delta = vec![Vec3::ZERO; model.base_vertices.len()];
         for (&i, &d) in target.indices.iter().zip(&target.deltas) {
             delta[i as usize] += d;
         }
-        let bound = self.bound(model, |i| delta[i]);
-        let smoothed = super::skin::smooth(&self.mesh, bound.clone(), self.reshape_rounds());
-        TargetMove { bound, smoothed }
+        self.bound(model, |i| delta[i])
     }
 
     /// The DQS warp `M = dqs(M0, body)` of the paper: the template reshaped to the body
