@@ -66,7 +66,22 @@ fn tune_allocator() {
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn tune_allocator() {}
 
+/// Output piped into a program that stops reading (`drape data info DIR | head`) ends the
+/// process quietly, as with other command-line tools, instead of a panic on the next write.
+#[cfg(unix)]
+#[allow(unsafe_code)]
+fn default_sigpipe() {
+    // SAFETY: restores the signal's default action; called before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+#[cfg(not(unix))]
+fn default_sigpipe() {}
+
 fn main() -> std::process::ExitCode {
+    default_sigpipe();
     tune_allocator();
     watch_parent();
     let args = cli::Cli::parse();

@@ -750,6 +750,11 @@ fn user_garments_are_imported_checked_and_usable() {
             "metres",
         ),
         (vec!["garment", "import", t, "--name", "tshirt"], "built-in"),
+        (vec!["garment", "import", t, "--name", "tube"], "built-in"),
+        (
+            vec!["garment", "import", t, "--name", "my-dress"],
+            "imported already",
+        ),
         (vec!["garment", "import", t, "--name", "a b"], "letters"),
         (
             vec!["garment", "import", "/nonexistent.obj", "--name", "x"],
@@ -766,6 +771,11 @@ fn user_garments_are_imported_checked_and_usable() {
     }
     assert_eq!(std::fs::read_dir(&user).unwrap().count(), before);
     assert!(!Path::new("/tmp/never.obj").exists());
+    // With --force the name is imported again.
+    let o = drape(&[
+        "--assets", a, "garment", "import", t, "--name", "my-dress", "--force",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 /// A child of `drape reproduce` carries its parent's id in DRAPE_WATCH_PARENT and stops
@@ -1030,6 +1040,27 @@ fn compare_pairs_two_evaluations_by_sample() {
     err(&["compare", r, bs], "has no per-sample rows");
     std::fs::write(&b, metrics_json(&[(1, 1.0, 1.0), (1, 2.0, 1.0)])).unwrap();
     err(&["compare", r, bs], "has sample id 1 twice");
+
+    // Evaluations of another dataset or split are other drapes, though their ids match.
+    let with_provenance = |manifest: &str, split: &str| {
+        format!(
+            "{{\"provenance\": {{\"manifest_sha256\": \"{manifest}\", \"split\": \"{split}\"}}, {}",
+            &metrics_json(&[(1, 1.0, 1.0), (2, 2.0, 1.0), (3, 1.0, 1.0)])[1..]
+        )
+    };
+    let a = dir.path().join("a.json");
+    let a_s = a.to_str().unwrap();
+    std::fs::write(&a, with_provenance("77d54b0123456789", "test")).unwrap();
+    std::fs::write(&b, with_provenance("4a29f60123456789", "test")).unwrap();
+    err(
+        &["compare", a_s, bs],
+        "on the test split of 4a29f6012345...: these are different drapes",
+    );
+    std::fs::write(&b, with_provenance("77d54b0123456789", "val")).unwrap();
+    err(&["compare", a_s, bs], "on the val split of 77d54b012345");
+    std::fs::write(&b, with_provenance("77d54b0123456789", "test")).unwrap();
+    let o = drape(&["compare", a_s, bs]);
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 /// Drapes `garment` at 3k on check sample `seed` with crease contacts on or off and
@@ -1165,4 +1196,83 @@ fn the_jeans_warp_stretches_under_one_percent_of_edges_by_over_30_percent() {
     // The price: more of the warp inside the body than the 0.30% without the split.
     let inside = r["summary"]["warp_inside_mean"].as_f64().unwrap();
     assert!((0.0050..0.0070).contains(&inside), "{inside}");
+}
+
+/// Counts of zero, out-of-range resolutions, exclusive options together and unwritable or
+/// missing files are refused at once with the option or path named; output piped into a
+/// reader that stops early ends the program without a panic.
+#[test]
+fn bad_counts_and_paths_are_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let missing = format!("{d}/no-such-folder/r.json");
+    let obj = format!("{d}/x.obj");
+    for (args, expect) in [
+        (
+            vec!["garment", "check", "tshirt", "--samples", "0"],
+            "'--samples <SAMPLES>': must be at least 1",
+        ),
+        (
+            vec!["garment", "check", "tshirt", "--samples", "x"],
+            "\"x\" is not a whole number",
+        ),
+        (
+            vec![
+                "bench",
+                "predict",
+                "configs/train/tshirt-local.toml",
+                "--batch",
+                "1,0",
+            ],
+            "'--batch <BATCH>': must be at least 1",
+        ),
+        (
+            vec!["garment", "check", "tshirt", "--samples", "2", "--corners"],
+            "cannot be used with '--corners'",
+        ),
+        (
+            vec![
+                "sim",
+                "--garment",
+                "tshirt",
+                "--resolution",
+                "5",
+                "-o",
+                &obj,
+            ],
+            "5 is not in 100..=200000",
+        ),
+        // 50 drapes at 3k would take minutes: the report's path is checked first.
+        (
+            vec![
+                "garment",
+                "check",
+                "tshirt",
+                "--resolution",
+                "3000",
+                "--report",
+                &missing,
+            ],
+            "no folder",
+        ),
+        (vec!["body", "check-prior", "--report", d], "it is a folder"),
+        (
+            vec!["reproduce", "/no-such-plan.toml", "--status"],
+            "cannot read /no-such-plan.toml",
+        ),
+    ] {
+        fails(dir.path(), &args, expect);
+    }
+
+    // The reader closes the pipe before the program writes: it stops, without a panic.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drape"))
+        .args(["garment", "list"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    assert_ne!(o.status.code(), Some(101), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
 }

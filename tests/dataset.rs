@@ -533,12 +533,21 @@ fn poses_come_from_a_folder_of_bvh_files() {
     std::fs::write(motions.join("notes.txt"), "not a motion").unwrap();
     let tiny = std::fs::read_to_string("configs/datasets/tiny.toml").unwrap();
     let cfg = t.path().join("bvh.toml");
+    let out = t.path().join("data");
+    // A misspelt folder is named as the config's; the failed start leaves the output
+    // folder to the corrected config.
+    std::fs::write(
+        &cfg,
+        format!("{tiny}\n[poses]\nsource = \"bvh\"\ndir = \"motion\"\n"),
+    )
+    .unwrap();
+    let (ok, text) = run(drape().arg("gen").arg(&cfg).arg("-o").arg(&out));
+    assert!(!ok && text.contains("the config's [poses] dir"), "{text}");
     std::fs::write(
         &cfg,
         format!("{tiny}\n[poses]\nsource = \"bvh\"\ndir = \"motions\"\n"),
     )
     .unwrap();
-    let out = t.path().join("data");
     let (ok, text) = run(drape().arg("gen").arg(&cfg).arg("-o").arg(&out));
     assert!(ok, "{text}");
     let data = Dataset::open(&out).unwrap();

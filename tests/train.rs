@@ -117,6 +117,47 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     std::fs::write(&seed7, text.replace("seed = 1\n", "seed = 7\n")).unwrap();
     let (ok, text) = train(&seed7, &data, &run_dir, &[]);
     assert!(!ok && text.contains("another config"), "{text}");
+    // So is a resume on other data: the same drapes under a manifest that differs.
+    let copy = tmp.path().join("data-copy");
+    std::fs::create_dir(&copy).unwrap();
+    for entry in std::fs::read_dir(&data).unwrap() {
+        let entry = entry.unwrap();
+        if entry.file_type().unwrap().is_file() {
+            std::fs::copy(entry.path(), copy.join(entry.file_name())).unwrap();
+        }
+    }
+    let manifest = std::fs::read_to_string(copy.join("manifest.json")).unwrap();
+    std::fs::write(copy.join("manifest.json"), manifest + "\n").unwrap();
+    let (ok, text) = train(&cfg, &copy, &run_dir, &[]);
+    assert!(
+        !ok && text.contains("was trained on dataset tiny with manifest sha256")
+            && text.contains("resume it with the data it started on"),
+        "{text}"
+    );
+    // A dataset with no training drapes is refused before a run folder is made.
+    let no_train = tmp.path().join("no-train.toml");
+    let tiny = std::fs::read_to_string("configs/datasets/tiny.toml").unwrap();
+    assert!(tiny.contains("train = 2\n"));
+    std::fs::write(
+        &no_train,
+        tiny.replace("train = 2\n", "train = 0\n")
+            .replace("name = \"tiny\"", "name = \"tiny-no-train\""),
+    )
+    .unwrap();
+    let no_train_data = tmp.path().join("data-no-train");
+    let (ok, text) = run(drape()
+        .arg("gen")
+        .arg(&no_train)
+        .arg("-o")
+        .arg(&no_train_data));
+    assert!(ok, "{text}");
+    let empty_run = tmp.path().join("run-no-train");
+    let (ok, text) = train(&cfg, &no_train_data, &empty_run, &[]);
+    assert!(
+        !ok && text.contains("has no drapes in its training split"),
+        "{text}"
+    );
+    assert!(!empty_run.exists());
 
     // Fine-tuning a Global network from a Local run is refused with both names.
     let global = config(tmp.path(), 1, "global", "");

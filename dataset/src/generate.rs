@@ -394,6 +394,9 @@ pub fn generate(
     let as_read: serde_json::Value =
         serde_json::from_str(&serde_json::to_string(&stamp.config).expect("configs serialise"))
             .expect("printed JSON parses");
+    // A folder that holds no drapes yet (a start that failed before its first drape, on a
+    // bad pose folder say) is taken over by this config.
+    let old = old.filter(|_| holds_drapes(dir));
     if old
         .as_ref()
         .is_some_and(|o| o.config_sha256 != stamp.config_sha256 || o.config != as_read)

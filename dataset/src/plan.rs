@@ -135,18 +135,28 @@ impl Poser {
         match &c.poses {
             PoseSource::Prior { library: None } => Ok(Poser::Prior(PosePrior::new(library))),
             PoseSource::Prior { library: Some(p) } => {
-                let text = std::fs::read_to_string(p).map_err(|e| DatasetError::Io {
-                    path: p.clone(),
-                    source: e,
+                let text = std::fs::read_to_string(p).map_err(|e| {
+                    DatasetError::Invalid(format!(
+                        "the config's [poses] library {}: {e}",
+                        p.display()
+                    ))
                 })?;
-                let lib = PoseLibrary::from_toml(&model.skeleton, &text, &model.t_pose)?;
+                let lib =
+                    PoseLibrary::from_toml(&model.skeleton, &text, &model.t_pose).map_err(|e| {
+                        DatasetError::Invalid(format!(
+                            "the config's [poses] library {}: {e}",
+                            p.display()
+                        ))
+                    })?;
                 Ok(Poser::Prior(PosePrior::new(lib)))
             }
             PoseSource::Bvh { dir } => {
                 let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-                    .map_err(|e| DatasetError::Io {
-                        path: dir.clone(),
-                        source: e,
+                    .map_err(|e| {
+                        DatasetError::Invalid(format!(
+                            "the config's [poses] dir {}: {e}",
+                            dir.display()
+                        ))
                     })?
                     .filter_map(|e| e.ok().map(|e| e.path()))
                     .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("bvh")))

@@ -50,6 +50,41 @@ fn metrics_file(path: &Path) -> Result<PathBuf, EvalError> {
     }
 }
 
+/// The drapes an evaluation was made on, from the provenance `drape eval` writes into its
+/// `metrics.json`: the dataset manifest's sha256 and the split. `None` for a file without
+/// one (the run records in `docs/eval/`).
+fn evaluated_on(path: &Path) -> Result<Option<(String, String)>, EvalError> {
+    let file = metrics_file(path)?;
+    let bytes = std::fs::read(&file)
+        .map_err(|e| EvalError::Invalid(format!("cannot read {}: {e}", file.display())))?;
+    let v: serde_json::Value = serde_json::from_slice(&bytes)
+        .map_err(|e| EvalError::Invalid(format!("{}: not JSON: {e}", file.display())))?;
+    let p = &v["provenance"];
+    Ok(p["manifest_sha256"]
+        .as_str()
+        .zip(p["split"].as_str())
+        .map(|(m, s)| (m.to_string(), s.to_string())))
+}
+
+/// Refuses to pair two evaluations whose provenance names different drapes: another
+/// dataset (its manifest's sha256) or another split. Sample ids repeat across datasets
+/// and splits, so matching ids alone do not make the drapes the same. Evaluations without
+/// a provenance pass.
+pub fn check_same_drapes(a: &Path, b: &Path) -> Result<(), EvalError> {
+    if let (Some((ma, sa)), Some((mb, sb))) = (evaluated_on(a)?, evaluated_on(b)?) {
+        if (&ma, &sa) != (&mb, &sb) {
+            return Err(EvalError::Invalid(format!(
+                "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset",
+                a.display(),
+                &ma[..ma.len().min(12)],
+                b.display(),
+                &mb[..mb.len().min(12)],
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Reads `method`'s per-sample figures from an evaluation: a report folder of `drape eval`
 /// (its `metrics.json`), or a JSON file with the same `samples` rows (a `metrics.json`,
 /// the run records in `docs/eval/` that kept per-drape figures). `simulator` reads the

@@ -46,6 +46,14 @@ pub enum EvalError {
     /// Nothing to evaluate, or inputs that do not fit together.
     #[error("{0}")]
     Invalid(String),
+    /// Reading an input file failed.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
     /// Writing the report failed.
     #[error("cannot write {path}: {source}")]
     Io {

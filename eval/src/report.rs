@@ -101,7 +101,7 @@ pub struct Provenance {
 }
 
 fn sha256_file(path: &Path) -> Result<String, EvalError> {
-    let bytes = std::fs::read(path).map_err(|e| EvalError::Io {
+    let bytes = std::fs::read(path).map_err(|e| EvalError::Read {
         path: path.to_path_buf(),
         source: e,
     })?;

@@ -110,7 +110,7 @@ fn one() -> usize {
 impl Plan {
     /// Reads and checks a plan.
     pub fn load(path: &Path) -> Result<Self, EvalError> {
-        let text = std::fs::read_to_string(path).map_err(|e| EvalError::Io {
+        let text = std::fs::read_to_string(path).map_err(|e| EvalError::Read {
             path: path.to_path_buf(),
             source: e,
         })?;

@@ -55,7 +55,7 @@ pub fn manifest_sha256(data: &Path) -> Result<String, LearnError> {
 }
 
 /// Creates the run folder with `config.toml` and `run.json`, or checks that an existing
-/// one was made by the same config on the same garment (resume).
+/// one was made by the same config on the same dataset (resume).
 pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Result<(), LearnError> {
     std::fs::create_dir_all(run).map_err(io(run))?;
     let cp = run.join("config.toml");
@@ -107,6 +107,16 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 info.vertices
             )))
         }
+        Some(old) if old.manifest_sha256 != info.manifest_sha256 => {
+            Err(LearnError::Mismatch(format!(
+                "{} was trained on dataset {} with manifest sha256 {}..., not on this data ({}, manifest {}...): resume it with the data it started on, or use another -o folder",
+                run.display(),
+                old.dataset,
+                &old.manifest_sha256[..old.manifest_sha256.len().min(12)],
+                info.dataset,
+                &info.manifest_sha256[..info.manifest_sha256.len().min(12)],
+            )))
+        }
         Some(_) => Ok(()),
         None => write_files(&[(&ip, &json(info))]),
     }
@@ -132,15 +142,15 @@ pub fn check_init(
     if &config.model != want {
         return Err(LearnError::Mismatch(format!(
             "{} was trained with other network widths or sizes than this config's [model] \
-             (theirs: {} body points, global feature {:?}, FeaStNet width {} with {} heads; \
-             this config's: {}, {:?}, {} with {}): fine-tune with the same widths (`--widths`)",
+             (theirs: {} body points, global feature {}, FeaStNet width {} with {} heads; \
+             this config's: {}, {}, {} with {}): fine-tune with the same widths (`--widths`)",
             init.display(),
             config.model.body_points,
-            config.model.body_mlp2.last(),
+            config.model.body_mlp2.last().copied().unwrap_or(0),
             config.model.conv_width,
             config.model.conv_heads,
             want.body_points,
-            want.body_mlp2.last(),
+            want.body_mlp2.last().copied().unwrap_or(0),
             want.conv_width,
             want.conv_heads
         )));
@@ -225,6 +235,14 @@ pub fn append_after(
         writeln!(f, "{header}").map_err(io(path))?;
     }
     Ok(f)
+}
+
+/// Ends the line of a finished bar that stays on the terminal, so that what is printed
+/// next starts on a line of its own (indicatif leaves the cursor after the bar).
+pub fn end_bar_line(bar: &ProgressBar) {
+    if !bar.is_hidden() {
+        eprintln!();
+    }
 }
 
 /// A progress bar (hidden when `show` is false).

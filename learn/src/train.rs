@@ -585,6 +585,18 @@ fn fit_prior(
 /// Trains (or resumes) a run. Returns the final state.
 pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnError> {
     let data = Dataset::open(&opts.data)?;
+    let train_drapes = data
+        .manifest
+        .samples()
+        .filter(|s| s.plan.split == Split::Train && s.ok)
+        .count();
+    if train_drapes == 0 {
+        return Err(LearnError::Config(format!(
+            "{} has no drapes in its training split to train on (`drape data info {}` lists its splits)",
+            opts.data.display(),
+            opts.data.display()
+        )));
+    }
     let device = Device::default().autodiff();
     let setup = Setup::new(config, &data, &device);
     let info = RunInfo {
@@ -757,6 +769,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                         "wall-clock cap of {} min reached; run again to continue",
                         config.wall_clock_minutes
                     ));
+                    crate::run::end_bar_line(&bar);
                     return Ok(state);
                 }
             }
@@ -798,6 +811,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         last_save = Instant::now();
     }
     bar.finish();
+    crate::run::end_bar_line(&bar);
     Ok(state)
 }
 

@@ -25,10 +25,10 @@ enum BenchCommand {
         #[arg(long, default_value = "tube", value_name = "NAME")]
         garment: String,
         /// About this many vertices for a built-in garment (default 10000).
-        #[arg(long, value_name = "N")]
+        #[arg(long, value_name = "N", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=200_000))]
         resolution: Option<usize>,
         /// Number of poses (random:SEED onwards).
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 3, value_parser = crate::cli::at_least_one::<u64>)]
         poses: u64,
         /// Seed of the first pose.
         #[arg(long, default_value_t = 1)]
@@ -47,7 +47,7 @@ enum BenchCommand {
         #[arg(long, value_name = "DIR")]
         data: Option<std::path::PathBuf>,
         /// Timed batches after one warm-up batch.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = crate::cli::at_least_one::<usize>)]
         batches: usize,
         /// Override the config's batch size.
         #[arg(long)]
@@ -73,10 +73,10 @@ enum BenchCommand {
         #[arg(long, default_value = "tshirt")]
         garment: String,
         /// Template sizes, comma-separated.
-        #[arg(long, default_value = "3000,10000", value_delimiter = ',')]
+        #[arg(long, default_value = "3000,10000", value_delimiter = ',', value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=200_000))]
         resolution: Vec<usize>,
         /// Batch sizes, comma-separated.
-        #[arg(long, default_value = "1,16", value_delimiter = ',')]
+        #[arg(long, default_value = "1,16", value_delimiter = ',', value_parser = crate::cli::at_least_one::<usize>)]
         batch: Vec<usize>,
         /// Variants, comma-separated (default: all four).
         #[arg(
@@ -86,7 +86,7 @@ enum BenchCommand {
         )]
         variant: Vec<String>,
         /// Timed repeats per measurement (after one warm-up); the median is printed.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = crate::cli::at_least_one::<usize>)]
         repeats: usize,
         /// Threads a batch's drapes are shared among, one drape per pass (default: one
         /// per thread of RAYON_NUM_THREADS; 1: the whole batch in one pass).
@@ -105,13 +105,13 @@ enum BenchCommand {
         #[arg(long, value_name = "DIR")]
         data: Option<std::path::PathBuf>,
         /// Test samples timed.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, value_parser = crate::cli::at_least_one::<usize>)]
         samples: usize,
         /// Batch size of the batched measurement.
-        #[arg(long, default_value_t = 16)]
+        #[arg(long, default_value_t = 16, value_parser = crate::cli::at_least_one::<usize>)]
         batch: usize,
         /// Timed repeats of each network measurement (median; after a warm-up).
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = crate::cli::at_least_one::<usize>)]
         repeats: usize,
         /// Also write the figures as JSON.
         #[arg(long, value_name = "FILE.json")]
@@ -261,6 +261,7 @@ fn bench_speedup(
     json: Option<std::path::PathBuf>,
     workers: usize,
 ) -> anyhow::Result<()> {
+    super::check_outputs(&[json.as_deref()])?;
     let (config, _) = learn::run::open_run(run)?;
     let dir = data.unwrap_or_else(|| config.data.clone());
     let data = dataset::reader::Dataset::open(&dir)?;
@@ -391,7 +392,8 @@ fn bench_speedup(
         println!("  {name:<20} {:.3}", flops / 1e9);
     }
     if let Some(p) = json {
-        std::fs::write(&p, serde_json::to_vec_pretty(&r)?)?;
+        std::fs::write(&p, serde_json::to_vec_pretty(&r)?)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", p.display()))?;
         println!("figures -> {}", p.display());
     }
     Ok(())

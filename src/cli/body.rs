@@ -104,13 +104,13 @@ enum BodyCommand {
         #[command(flatten)]
         shape: ShapeArgs,
         /// Number of poses.
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, default_value_t = 8, value_parser = crate::cli::at_least_one::<usize>)]
         samples: usize,
         /// Seed of the first pose.
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Poses per row.
-        #[arg(long, default_value_t = 4)]
+        #[arg(long, default_value_t = 4, value_parser = crate::cli::at_least_one::<usize>)]
         columns: usize,
         /// Height of one cell in pixels (16 to 2048).
         #[arg(long, default_value_t = 360, value_parser = clap::value_parser!(u32).range(16..=2048))]
@@ -123,7 +123,7 @@ enum BodyCommand {
     /// body self-intersection (limbs through the torso or each other), per family.
     CheckPrior {
         /// Number of poses.
-        #[arg(long, default_value_t = 1000)]
+        #[arg(long, default_value_t = 1000, value_parser = crate::cli::at_least_one::<usize>)]
         samples: usize,
         /// Seed of the first sample (sample i uses seed + i).
         #[arg(long, default_value_t = 0)]
@@ -411,6 +411,7 @@ fn check_prior(
     seed: u64,
     report: Option<&Path>,
 ) -> anyhow::Result<()> {
+    super::check_outputs(&[report])?;
     let (model, library) = load(ctx)?;
     let t0 = Instant::now();
     let bar = indicatif::ProgressBar::new(samples as u64).with_style(

@@ -122,7 +122,7 @@ pub enum DataCommand {
         #[arg(long, default_value = "test")]
         split: String,
         /// Samples redraped (the first ones of the split).
-        #[arg(long, default_value_t = 20)]
+        #[arg(long, default_value_t = 20, value_parser = crate::cli::at_least_one::<usize>)]
         samples: usize,
         /// Largest offset of a starting vertex per coordinate (m); a comma-separated list
         /// redrapes each sample once per value.
@@ -197,12 +197,18 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
         )?
         .progress_chars("=> "),
     );
+    // Drawn from the start event on, once it knows how many drapes there are to do.
+    let stderr_bar = !bar.is_hidden();
+    bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     bar.set_prefix("gen");
     let failed = AtomicUsize::new(0);
     let progress = |e: Event| match e {
         Event::Start { todo, done } => {
             bar.set_length(todo as u64);
             bar.set_message("0 failed");
+            if stderr_bar {
+                bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+            }
             if done > 0 {
                 bar.println(format!(
                     "resuming: {done} drapes already done, {todo} to go"
@@ -233,6 +239,7 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
         )
     })?;
     bar.finish();
+    learn::run::end_bar_line(&bar);
     let m = &summary.manifest;
     let t = m.tally();
     println!(
@@ -298,6 +305,7 @@ fn curve_run(
     json: Option<&Path>,
     png: Option<&Path>,
 ) -> anyhow::Result<()> {
+    super::check_outputs(&[json, png])?;
     let data = Dataset::open(dir)?;
     let t0 = std::time::Instant::now();
     let curve = eval::curve::measure(&data, shares, &mut |m| {
@@ -350,6 +358,7 @@ fn sensitivity_run(
     render: Option<&Path>,
 ) -> anyhow::Result<()> {
     use eval::sensitivity::{SensitivityOptions, measure};
+    super::check_outputs(&[json, render])?;
     let split = Split::parse(split)?;
     let opts = SensitivityOptions {
         samples,

@@ -48,7 +48,7 @@ pub struct EvalArgs {
     #[arg(short, long, value_name = "REPORT_DIR")]
     output: PathBuf,
     /// Samples per network batch.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = crate::cli::at_least_one::<usize>)]
     batch: usize,
 }
 
@@ -123,6 +123,8 @@ pub struct CompareArgs {
 /// Runs `drape compare`.
 pub fn compare(args: CompareArgs) -> anyhow::Result<()> {
     let mb = args.method_b.as_deref().unwrap_or(&args.method);
+    super::check_outputs(&[args.json.as_deref()])?;
+    eval::compare::check_same_drapes(&args.a, &args.b)?;
     let (a, b) = (
         eval::compare::load(&args.a, &args.method)?,
         eval::compare::load(&args.b, mb)?,
@@ -158,6 +160,7 @@ pub struct ImportanceArgs {
 /// Runs `drape importance`.
 pub fn importance(args: ImportanceArgs) -> anyhow::Result<()> {
     use eval::importance::{ImportanceOptions, measure};
+    super::check_outputs(&[args.json.as_deref()])?;
     let (split, _, data) = args.on.open()?;
     let report = measure(
         &args.on.run,

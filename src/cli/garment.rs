@@ -27,7 +27,7 @@ enum GarmentCommand {
         name: String,
         /// About this many vertices (default: the definition's, 10000; 3000 is the CPU
         /// training variant).
-        #[arg(long, value_name = "N")]
+        #[arg(long, value_name = "N", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=200_000))]
         resolution: Option<usize>,
         /// Output OBJ of the template (on the canonical body in its rest pose).
         #[arg(short = 'o', long, value_name = "FILE.obj")]
@@ -52,6 +52,9 @@ enum GarmentCommand {
         /// config's, 0.3); a built-in garment sets it in its definition's `[material]`.
         #[arg(long, value_name = "MU")]
         friction: Option<f32>,
+        /// Replace an imported garment of the same name.
+        #[arg(long)]
+        force: bool,
     },
     /// List the garments: built-in ones (their sizes, own friction, substeps and crease
     /// contacts, and which resolutions are cached) and imported ones (own friction).
@@ -63,10 +66,10 @@ enum GarmentCommand {
         /// Garment name.
         name: String,
         /// About this many vertices for a built-in garment (default 10000).
-        #[arg(long, value_name = "N")]
+        #[arg(long, value_name = "N", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=200_000))]
         resolution: Option<usize>,
         /// Number of sampled bodies and poses.
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 3, value_parser = crate::cli::at_least_one::<u64>)]
         samples: u64,
         /// Seed of the first sample (as for `drape garment check`).
         #[arg(long, default_value_t = 0)]
@@ -97,11 +100,11 @@ enum GarmentCommand {
         /// Garment name.
         name: String,
         /// About this many vertices for a built-in garment (default 10000).
-        #[arg(long, value_name = "N")]
+        #[arg(long, value_name = "N", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=200_000))]
         resolution: Option<usize>,
         /// Number of sampled bodies and poses (sample k uses pose random:SEED+k and the
         /// matching body of the default shape range).
-        #[arg(long, default_value_t = 50)]
+        #[arg(long, default_value_t = 50, value_parser = crate::cli::at_least_one::<u64>, conflicts_with = "corners")]
         samples: u64,
         /// Seed of the first sample.
         #[arg(long, default_value_t = 0)]
@@ -498,9 +501,10 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
             obj,
             name,
             friction,
+            force,
         } => {
             let (model, _) = load(ctx)?;
-            let (t, path) = lib.import(&obj, &name, friction, &model)?;
+            let (t, path) = lib.import(&obj, &name, friction, &model, force)?;
             println!(
                 "imported {} as {name}: {} vertices, {} triangles -> {}",
                 obj.display(),
@@ -520,7 +524,7 @@ pub struct WarpArgs {
     #[arg(long)]
     garment: String,
     /// About this many vertices for a built-in garment (default 10000).
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=200_000))]
     resolution: Option<usize>,
     /// Size of a garment graded in sizes: `auto` for the size the body's measurements pick,
     /// or a size's name. Default: the base size M, the network's input.
@@ -700,6 +704,7 @@ fn check(
     use rayon::prelude::*;
     use sim::cloth::SimConfig;
 
+    super::check_outputs(&[report.as_deref()])?;
     let config = match &config {
         Some(p) => SimConfig::load(p)?,
         None => SimConfig::default(),

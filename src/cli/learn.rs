@@ -33,7 +33,8 @@ pub struct TrainArgs {
     /// follows; the run's config.toml records the value used).
     #[arg(long, value_name = "N")]
     epochs: Option<usize>,
-    /// Wall-clock cap of this invocation instead of the config's `wall_clock_minutes`.
+    /// Wall-clock cap of this invocation instead of the config's `wall_clock_minutes`
+    /// (0: no cap).
     #[arg(long, value_name = "MINUTES")]
     wall_clock_minutes: Option<f64>,
     /// Train at these network widths instead of the config's: `cpu` or `paper` (6,890

@@ -42,7 +42,8 @@ pub enum Command {
     /// Drape a garment on a shaped, posed body with the cloth simulator: OBJ, PNG and a
     /// quality report.
     Sim(Box<simulate::SimArgs>),
-    /// Garment templates: build the built-in ones, import your own, list them.
+    /// Garment templates: build the built-in ones, import your own, list them, render them
+    /// on sampled bodies and check their drapes against the quality bars.
     Garment(garment::GarmentArgs),
     /// Warp a garment template to a shaped, posed body with dual quaternion skinning (the
     /// network's input and the DQS baseline): OBJ and PNG.
@@ -52,7 +53,8 @@ pub enum Command {
     /// Generate a drape dataset (shards of bodies, DQS warps and simulated drapes) from a
     /// config, in parallel and resumably; `--shard I/N` makes one part of a cluster job.
     Gen(data::GenArgs),
-    /// Inspect, verify and merge datasets made by `drape gen`.
+    /// Inspect, verify, show and merge datasets made by `drape gen`; measure the
+    /// simulator's scatter (sensitivity) and what more data would buy (curve).
     Data(data::DataArgs),
     /// Train a GarNet network (Naive, Global, Local, Global-Params) on a dataset; resumes;
     /// `--init` fine-tunes from another run.
@@ -60,8 +62,8 @@ pub enum Command {
     /// Drape a garment with a trained network: the DQS warp onto a shaped, posed body, then
     /// the network (the run folder knows its garment).
     Predict(Box<learn::PredictArgs>),
-    /// Evaluate a trained network and the DQS, mean-residual, nearest-neighbour and linear
-    /// baselines on a dataset split: Edist, Enorm, curvature, physics, curves and renders
+    /// Evaluate a trained network and the DQS, mean-residual, nearest-neighbour, linear and
+    /// kernel baselines on a dataset split: Edist, Enorm, curvature, physics, curves and renders
     /// in a report folder.
     Eval(evaluate::EvalArgs),
     /// Compare two evaluations of the same drapes sample by sample (two networks, or a
@@ -110,5 +112,44 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Importance(args) => evaluate::importance(args),
         Command::Quickstart(args) => quickstart::run(args, &ctx),
         Command::Reproduce(args) => reproduce::run(args, &ctx),
+    }
+}
+
+/// Checks, before any work, that each given output file can be written: its folder exists
+/// and takes a new file. A long command with a mistyped output path then stops at once
+/// instead of after its work.
+pub(crate) fn check_outputs(paths: &[Option<&std::path::Path>]) -> anyhow::Result<()> {
+    for path in paths.iter().flatten() {
+        if path.is_dir() {
+            anyhow::bail!("cannot write {}: it is a folder", path.display());
+        }
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => std::path::Path::new("."),
+        };
+        if !dir.is_dir() {
+            anyhow::bail!(
+                "cannot write {}: no folder {}",
+                path.display(),
+                dir.display()
+            );
+        }
+        let probe = dir.join(format!(".drape-write-check-{}", std::process::id()));
+        std::fs::File::create(&probe)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+        let _ = std::fs::remove_file(&probe);
+    }
+    Ok(())
+}
+
+/// A count given on the command line that must be at least 1 (`--samples`, `--batch`...).
+pub(crate) fn at_least_one<T>(s: &str) -> Result<T, String>
+where
+    T: std::str::FromStr + PartialOrd + From<u8>,
+{
+    match s.parse::<T>() {
+        Ok(n) if n >= T::from(1) => Ok(n),
+        Ok(_) => Err("must be at least 1".to_string()),
+        Err(_) => Err(format!("{s:?} is not a whole number")),
     }
 }

@@ -26,7 +26,9 @@ pub struct QuickstartArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Run folder of the network (default: the committed weights in
-    /// assets/quickstart/tshirt-local).
+    /// assets/quickstart/tshirt-local). Bodies, poses and the simulator come from the
+    /// dataset config it was trained on: its data folder's, or the built-in config of
+    /// that name when the folder is not here.
     #[arg(long = "model", value_name = "RUN_DIR")]
     run: Option<PathBuf>,
     /// Instead: redrape the first 10 test samples of the network's dataset config with
@@ -55,15 +57,31 @@ pub struct Reference {
 /// Runs `drape quickstart`.
 pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     let run_dir = args.run.clone().unwrap_or_else(|| default_run(ctx));
-    let (_, info) = learn::run::open_run(&run_dir).map_err(|e| {
-        anyhow::anyhow!("{e}\n(the quick start needs the network weights in {}; they are part of the repository)", run_dir.display())
+    let (config, info) = learn::run::open_run(&run_dir).map_err(|e| {
+        if args.run.is_some() {
+            anyhow::anyhow!("{e}\n(--model takes a run folder of `drape train`)")
+        } else {
+            anyhow::anyhow!("{e}\n(the quick start needs the network weights in {}; they are part of the repository)", run_dir.display())
+        }
     })?;
-    let dc = DatasetConfig::load(&info.dataset).map_err(|e| {
-        anyhow::anyhow!(
-            "{e}\n(the quick start draws bodies with the dataset config the network was trained on, {:?}, which must be a built-in config)",
-            info.dataset
-        )
-    })?;
+    // The dataset config the network was trained on: from its data folder when that is
+    // here and still the one trained on, else the built-in config of that name (the
+    // committed weights' data is not shipped).
+    let trained_on = dataset::reader::Dataset::open(&config.data)
+        .ok()
+        .filter(|_| {
+            learn::run::manifest_sha256(&config.data).is_ok_and(|m| m == info.manifest_sha256)
+        });
+    let dc = match trained_on {
+        Some(d) => d.manifest.dataset_config()?,
+        None => DatasetConfig::load(&info.dataset).map_err(|e| {
+            anyhow::anyhow!(
+                "{e}\n(the quick start draws bodies with the dataset config the network was trained on: its data folder {} is not here, and {:?} is not a built-in config)",
+                config.data.display(),
+                info.dataset
+            )
+        })?,
+    };
     if let Some(out) = &args.reference {
         return reference(ctx, &run_dir, &dc, out);
     }

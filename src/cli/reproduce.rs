@@ -314,7 +314,8 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    std::fs::create_dir_all(&out)?;
+    std::fs::create_dir_all(&out)
+        .map_err(|e| anyhow::anyhow!("cannot make the working folder {}: {e}", out.display()))?;
     // What earlier sessions recorded in the repository (the plan's `record`) and this
     // working folder lacks: a fresh machine resumes where they stopped.
     for what in eval::repro::record::restore(&plan, &out)? {

@@ -22,7 +22,7 @@ pub struct SimArgs {
     garment: String,
     /// About this many vertices for a built-in garment (default 10000; 3000 for CPU
     /// training).
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(100..=200_000))]
     resolution: Option<usize>,
     #[command(flatten)]
     shape: ShapeArgs,

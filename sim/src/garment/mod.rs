@@ -457,13 +457,16 @@ impl Library {
 
     /// Imports a user's OBJ as garment `name` (see [`import_mesh`]) and stores it.
     /// `friction` is the garment's own friction against the body (`None`: the simulator
-    /// config's), as a built-in definition's `[material]` gives it.
+    /// config's), as a built-in definition's `[material]` gives it. An imported garment of
+    /// the same name is replaced only with `replace`: runs and datasets name their garment,
+    /// and would warp the new mesh.
     pub fn import(
         &self,
         obj: &Path,
         name: &str,
         friction: Option<f32>,
         model: &BodyModel,
+        replace: bool,
     ) -> Result<(Template, PathBuf), GarmentError> {
         if name.is_empty()
             || !name
@@ -475,10 +478,19 @@ impl Library {
                 reason: format!("name {name:?}: use letters, digits, - and _"),
             });
         }
-        if built_in(name).is_some() {
+        if built_in(name).is_some() || name == "tube" {
             return Err(GarmentError::Rejected {
                 path: obj.to_path_buf(),
                 reason: format!("{name} is a built-in garment; choose another name"),
+            });
+        }
+        if !replace && self.user_path(name).exists() {
+            return Err(GarmentError::Rejected {
+                path: obj.to_path_buf(),
+                reason: format!(
+                    "a garment named {name} is imported already ({}); choose another name, or pass --force to replace it (runs and datasets of the old one would then warp the new mesh)",
+                    self.user_path(name).display()
+                ),
             });
         }
         if let Some(mu) = friction {
