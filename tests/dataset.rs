@@ -589,6 +589,13 @@ fn poses_come_from_a_folder_of_bvh_files() {
         .arg("-o")
         .arg(t.path().join("o")));
     assert!(!ok && text.contains("no .bvh files"), "{text}");
+    // A folder holding other files is not taken for a dataset.
+    let (ok, text) = run(drape().arg("gen").arg(&cfg).arg("-o").arg(&motions));
+    assert!(
+        !ok && text.contains("is not empty and holds no dataset"),
+        "{text}"
+    );
+    assert!(!motions.join("config.json").exists());
 }
 
 #[test]

@@ -158,6 +158,9 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         "{text}"
     );
     assert!(!empty_run.exists());
+    // Nor does a run go into a dataset's folder.
+    let (ok, text) = train(&cfg, &data, &data, &[]);
+    assert!(!ok && text.contains("is a dataset folder"), "{text}");
 
     // Fine-tuning a Global network from a Local run is refused with both names.
     let global = config(tmp.path(), 1, "global", "");

@@ -364,6 +364,14 @@ pub fn generate(
     // A folder holds one dataset: refuse another config (before any work), another
     // garment material or drapes of another build.
     let stamp_path = dir.join("config.json");
+    if !stamp_path.exists()
+        && std::fs::read_dir(dir).is_ok_and(|mut entries| entries.next().is_some())
+    {
+        return Err(DatasetError::Invalid(format!(
+            "{} is not empty and holds no dataset (no config.json); use a new or empty folder",
+            dir.display()
+        )));
+    }
     let old: Option<Stamp> = match std::fs::read(&stamp_path) {
         Ok(bytes) => Some(
             serde_json::from_slice(&bytes)

@@ -57,6 +57,12 @@ pub fn manifest_sha256(data: &Path) -> Result<String, LearnError> {
 /// Creates the run folder with `config.toml` and `run.json`, or checks that an existing
 /// one was made by the same config on the same dataset (resume).
 pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Result<(), LearnError> {
+    if run.join("manifest.json").exists() {
+        return Err(LearnError::Mismatch(format!(
+            "{} is a dataset folder; give the run a folder of its own (-o)",
+            run.display()
+        )));
+    }
     std::fs::create_dir_all(run).map_err(io(run))?;
     let cp = run.join("config.toml");
     let text = toml::to_string(config).expect("serialisable config");
