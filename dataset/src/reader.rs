@@ -35,7 +35,7 @@ impl Dataset {
     pub fn open(dir: &Path) -> Result<Self, DatasetError> {
         let mp = dir.join("manifest.json");
         let text = std::fs::read(&mp).map_err(|e| {
-            let hint = if dir.exists() {
+            let hint = if dir.join("partial").is_dir() || dir.join("config.json").is_file() {
                 " (a dataset generated with --shard needs `drape data merge` first)"
             } else {
                 ""

@@ -445,3 +445,44 @@ fn the_morph_slows_down_so_no_body_vertex_outruns_the_speed_limit() {
     assert_eq!(morph.frames(), config.morph_frames);
     assert!(speed(&morph) < config.max_morph_speed);
 }
+
+#[test]
+fn mpfb_pose_files_are_read_and_bad_ones_named_as_pose_files() {
+    let m = model();
+    let path = std::path::Path::new("pose.json");
+    let pose = Pose::from_mpfb_json(
+        &m.skeleton,
+        r#"{"bone_rotations": {"LeftForeArm": [0.0, 0.0, 0.5]}}"#,
+        path,
+    )
+    .unwrap();
+    let i = m.skeleton.index("LeftForeArm").unwrap();
+    // A half-radian turn of that bone, the others at rest.
+    assert!((pose.rotations[i].angle_between(Quat::IDENTITY) - 0.5).abs() < 1e-5);
+    assert_eq!(
+        pose.rotations
+            .iter()
+            .filter(|q| q.angle_between(Quat::IDENTITY) > 1e-6)
+            .count(),
+        1
+    );
+    for (text, expect) in [
+        ("{\"bones\": 1}", "not an MPFB pose file"),
+        (
+            r#"{"bone_rotations": {}, "bone_translations": {"LeftArm": [0, 0, 1]}}"#,
+            "bone translations (of LeftArm) are not supported",
+        ),
+        (
+            r#"{"bone_rotations": {"LeftArm": [0, 1]}}"#,
+            "LeftArm: expected three Euler angles",
+        ),
+    ] {
+        let e = Pose::from_mpfb_json(&m.skeleton, text, path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("pose.json is not a pose file drape can read: ") && e.contains(expect),
+            "{e}"
+        );
+    }
+}

@@ -50,6 +50,14 @@ pub enum BodyError {
         /// What is wrong with it.
         reason: String,
     },
+    /// A pose file (MPFB's JSON) that cannot be read as a pose.
+    #[error("{path} is not a pose file drape can read: {reason}")]
+    BadPoseFile {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// A shape parameter is out of range.
     #[error("shape parameter {name} = {value} is invalid: {reason}")]
     BadParameter {

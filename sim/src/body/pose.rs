@@ -71,7 +71,7 @@ impl Pose {
             #[serde(default)]
             bone_rotation_modes: BTreeMap<String, String>,
         }
-        let bad = |reason: String| BodyError::Corrupt {
+        let bad = |reason: String| BodyError::BadPoseFile {
             path: origin.to_path_buf(),
             reason,
         };
