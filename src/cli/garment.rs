@@ -324,6 +324,7 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
     let lib = Library::new(&ctx.assets);
     match args.command {
         GarmentCommand::List => {
+            let (model, _) = load(ctx)?;
             for (name, _) in sim::garment::def::BUILT_IN {
                 let def = sim::garment::built_in(name).expect("built-in");
                 let dir = lib.built_path(name, 0);
@@ -340,7 +341,11 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                     })
                     .collect();
                 sizes.sort_unstable();
-                let cached: Vec<String> = sizes.iter().map(usize::to_string).collect();
+                let (current, stale): (Vec<usize>, Vec<usize>) = sizes
+                    .iter()
+                    .partition(|&&v| lib.is_current(name, v, &model));
+                let cached: Vec<String> = current.iter().map(usize::to_string).collect();
+                let stale: Vec<String> = stale.iter().map(usize::to_string).collect();
                 let graded = def.grading.as_ref().map_or_else(
                     || "one size".to_string(),
                     |g| format!("{} sizes by {}", g.sizes.len() + 1, g.by.join(", ")),
@@ -372,6 +377,13 @@ pub fn run(args: GarmentArgs, ctx: &Context) -> anyhow::Result<()> {
                         String::new()
                     } else {
                         format!(" [cached: {} vertices]", cached.join(", "))
+                    } + &if stale.is_empty() {
+                        String::new()
+                    } else {
+                        format!(
+                            " [out of date, rebuilt on next use: {} vertices]",
+                            stale.join(", ")
+                        )
                     }
                 );
             }

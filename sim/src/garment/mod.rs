@@ -335,6 +335,26 @@ impl Library {
         }
     }
 
+    /// Whether built-in garment `name`'s cached template at `vertices` is current: it
+    /// loads and was built from today's definition and build code (else [`Self::get`]
+    /// builds it again).
+    pub fn is_current(&self, name: &str, vertices: usize, model: &BodyModel) -> bool {
+        let Some((_, text)) = def::BUILT_IN.iter().find(|(n, _)| *n == name) else {
+            return false;
+        };
+        let (Ok(key), Ok(t)) = (
+            self.key(text),
+            Template::load(
+                &self.built_path(name, vertices),
+                model.triangles.len(),
+                model.skeleton.len(),
+            ),
+        ) else {
+            return false;
+        };
+        t.meta.key == key
+    }
+
     /// A garment by name: a built-in one at `vertices` (from the cache, built and cached on
     /// first use) or an imported one. `built` is told when a build happens (it takes seconds).
     pub fn get(
