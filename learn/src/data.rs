@@ -202,66 +202,11 @@ pub fn row_params(row: &Row) -> Vec<f32> {
     body_params(&row.shape, &row.pose)
 }
 
-/// Point sets up to this size are searched by brute force ([`knn_brute`]), larger ones
-/// with a k-d tree ([`knn_tree`]). GarNet-Local's two searches (each garment vertex's
-/// nearest of 200 local body points, each of those's nearest of 2,000 body points) are
-/// below it.
-const BRUTE_FORCE_UP_TO: usize = 2_048;
-
 /// For each query, the indices of its `k` nearest points (nearest first). The queries run
 /// in parallel, 256 or more to a task (at batch 1 GarNet-Local's two searches were a tenth
 /// of a drape's time on one thread, docs/bench.md); the result does not depend on the
 /// thread count.
 pub fn knn(points: &[Vec3], queries: &[Vec3], k: usize) -> Vec<u32> {
-    if points.len() <= BRUTE_FORCE_UP_TO {
-        knn_brute(points, queries, k)
-    } else {
-        knn_tree(points, queries, k)
-    }
-}
-
-/// [`knn`] by comparing each query with every point: the squared distances to all points
-/// in one pass over coordinate arrays (which the compiler vectorises), then the `k`
-/// smallest kept in order by insertion; equal distances keep the lower index first. The
-/// distances are the k-d tree's to the bit (the same differences, squares and sums), so
-/// the two searches differ only in how they order exact ties.
-fn knn_brute(points: &[Vec3], queries: &[Vec3], k: usize) -> Vec<u32> {
-    let n = points.len();
-    let k = k.min(n);
-    assert!(k >= 1, "k >= 1 and a non-empty point set");
-    let xs: Vec<f32> = points.iter().map(|p| p.x).collect();
-    let ys: Vec<f32> = points.iter().map(|p| p.y).collect();
-    let zs: Vec<f32> = points.iter().map(|p| p.z).collect();
-    let mut out = vec![0u32; queries.len() * k];
-    out.par_chunks_mut(k)
-        .zip(queries.par_iter())
-        .with_min_len(256)
-        .for_each_init(
-            || (vec![0.0f32; n], Vec::with_capacity(k + 1)),
-            |(d, best): &mut (Vec<f32>, Vec<(f32, u32)>), (o, q)| {
-                for (((d, &x), &y), &z) in d.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
-                    let (dx, dy, dz) = (x - q.x, y - q.y, z - q.z);
-                    *d = dx * dx + dy * dy + dz * dz;
-                }
-                best.clear();
-                for (j, &dj) in d.iter().enumerate() {
-                    if best.len() == k && dj >= best[k - 1].0 {
-                        continue;
-                    }
-                    let at = best.partition_point(|&(b, _)| b <= dj);
-                    best.insert(at, (dj, j as u32));
-                    best.truncate(k);
-                }
-                for (slot, &(_, j)) in o.iter_mut().zip(best.iter()) {
-                    *slot = j;
-                }
-            },
-        );
-    out
-}
-
-/// [`knn`] with a k-d tree (kiddo), for larger point sets.
-fn knn_tree(points: &[Vec3], queries: &[Vec3], k: usize) -> Vec<u32> {
     let entries: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
     let tree = ImmutableKdTree::new_from_slice(&entries).expect("a non-empty point set");
     let k = NonZero::new(k.min(points.len())).expect("k >= 1");
@@ -391,9 +336,8 @@ mod tests {
         );
     }
 
-    /// The k-d tree's k nearest and the brute force's, searched in parallel, are a plain
-    /// sort's: the same sets, nearest first, for more queries than one task takes; and
-    /// the two searches give the same lists (no ties among random points).
+    /// The k-d tree's k nearest, searched in parallel, are a brute-force search's: the
+    /// same sets, nearest first, for more queries than one task takes.
     #[test]
     fn knn_is_brute_force_nearest_first() {
         let mut state = 12345u64;
@@ -410,9 +354,7 @@ mod tests {
             .map(|_| Vec3::new(next(), next(), next()))
             .collect();
         let k = 15;
-        let got = knn_tree(&points, &queries, k);
-        assert_eq!(got, knn_brute(&points, &queries, k));
-        assert_eq!(got, knn(&points, &queries, k));
+        let got = knn(&points, &queries, k);
         assert_eq!(got.len(), queries.len() * k);
         for (q, found) in queries.iter().zip(got.chunks_exact(k)) {
             let mut d: Vec<(f32, u32)> = points
@@ -431,18 +373,7 @@ mod tests {
             b.sort_unstable();
             assert_eq!(a, b);
         }
-        // More neighbours asked than points: all of them, by either search.
-        for search in [knn_tree, knn_brute] {
-            let all = search(&points[..5], &queries[..3], 8);
-            assert_eq!(all.len(), 3 * 5);
-            for found in all.chunks_exact(5) {
-                let mut f = found.to_vec();
-                f.sort_unstable();
-                assert_eq!(f, [0, 1, 2, 3, 4]);
-            }
-        }
-        // Equal distances: the brute force keeps the lower index first.
-        let twins = [Vec3::X, Vec3::NEG_X, Vec3::Y * 3.0, Vec3::X];
-        assert_eq!(knn_brute(&twins, &[Vec3::ZERO], 3), [0, 1, 3]);
+        // More neighbours asked than points: all of them.
+        assert_eq!(knn(&points[..5], &queries[..3], 8).len(), 3 * 5);
     }
 }
