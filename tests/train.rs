@@ -161,6 +161,20 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     // Nor does a run go into a dataset's folder.
     let (ok, text) = train(&cfg, &data, &data, &[]);
     assert!(!ok && text.contains("is a dataset folder"), "{text}");
+    // Nor more body points than the body has.
+    let many = tmp.path().join("many.toml");
+    let text = std::fs::read_to_string("configs/train/tiny.toml").unwrap();
+    assert!(text.contains("body_points = 500\n"));
+    std::fs::write(
+        &many,
+        text.replace("body_points = 500\n", "body_points = 100000\n"),
+    )
+    .unwrap();
+    let (ok, text) = train(&many, &data, &tmp.path().join("run-many"), &[]);
+    assert!(
+        !ok && text.contains("model.body_points = 100000 is more than the body's 13380 vertices"),
+        "{text}"
+    );
 
     // Fine-tuning a Global network from a Local run is refused with both names.
     let global = config(tmp.path(), 1, "global", "");

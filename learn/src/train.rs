@@ -590,6 +590,13 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         .samples()
         .filter(|s| s.plan.split == Split::Train && s.ok)
         .count();
+    let body = data.statics.canonical_body.len();
+    if config.model.body_points > body {
+        return Err(LearnError::Config(format!(
+            "model.body_points = {} is more than the body's {body} vertices",
+            config.model.body_points
+        )));
+    }
     if train_drapes == 0 {
         return Err(LearnError::Config(format!(
             "{} has no drapes in its training split to train on (`drape data info {}` lists its splits)",
