@@ -298,6 +298,75 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         .arg(&obj));
     assert!(!ok && text.contains("not a run folder"), "{text}");
 
+    // A range of BVH frames: one numbered OBJ per frame, each the single frame's drape.
+    let model = sim::body::BodyModel::load_default().unwrap();
+    let body = model.shape(&sim::body::ShapeParams::default()).unwrap();
+    let stand = glam::Vec3::new(0.0, sim::body::bvh::write_cmu(&body, &[]).1, 0.0);
+    let arms = |deg: f32| vec![("LeftArm", [-deg, 0.0, 0.0]), ("RightArm", [deg, 0.0, 0.0])];
+    let frames: Vec<_> = [70.0, 60.0, 50.0, 40.0]
+        .iter()
+        .map(|&d| (stand, arms(d)))
+        .collect();
+    let bvh = tmp.path().join("arms.bvh");
+    std::fs::write(&bvh, sim::body::bvh::write_cmu(&body, &frames).0).unwrap();
+    let seq = tmp.path().join("seq").join("tee.obj");
+    std::fs::create_dir(seq.parent().unwrap()).unwrap();
+    let predict = |pose: &str, out: &Path| {
+        run(drape()
+            .args(["predict", "--model"])
+            .arg(&run_dir)
+            .args(["--pose", pose, "-o"])
+            .arg(out))
+    };
+    let b = bvh.to_str().unwrap();
+    let (ok, text) = predict(&format!("{b}:1-3"), &seq);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("3 frames") && text.contains("ms per frame"),
+        "{text}"
+    );
+    let mut written: Vec<String> = std::fs::read_dir(seq.parent().unwrap())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    written.sort();
+    assert_eq!(written, ["tee-0001.obj", "tee-0002.obj", "tee-0003.obj"]);
+    let one = tmp.path().join("one.obj");
+    let (ok, text) = predict(&format!("{b}:2"), &one);
+    assert!(ok, "{text}");
+    let vertices = |p: &Path| -> Vec<f64> {
+        std::fs::read_to_string(p)
+            .unwrap()
+            .lines()
+            .filter(|l| l.starts_with("v "))
+            .flat_map(|l| {
+                l[2..]
+                    .split_whitespace()
+                    .map(|v| v.parse::<f64>().unwrap())
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    let (a, single) = (
+        vertices(&seq.with_file_name("tee-0002.obj")),
+        vertices(&one),
+    );
+    assert_eq!(a.len(), single.len());
+    let far = a
+        .iter()
+        .zip(&single)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    assert!(far < 1e-4, "frame 2 in a batch and alone differ by {far} m");
+    for (range, expect) in [
+        ("3-1", "the first frame comes after the last"),
+        ("0-4", "has 4 frames (0 to 3)"),
+        ("0-x", "a range of frames is FIRST-LAST"),
+    ] {
+        let (ok, text) = predict(&format!("{b}:{range}"), &seq);
+        assert!(!ok && text.contains(expect), "{range}: {text}");
+    }
+
     // The batch API: a batch of three predicts what each sample alone does, in one pass
     // (one worker) and with its drapes shared among two workers (parts of 2 and 1).
     let d = dataset::reader::Dataset::open(&data).unwrap();

@@ -117,7 +117,9 @@ pub struct PredictArgs {
     target: BodyOutputArgs,
 }
 
-/// Runs `drape predict`: `G^P = M + T^P` with `M = dqs(M0, body)`.
+/// Runs `drape predict`: `G^P = M + T^P` with `M = dqs(M0, body)`. A range of BVH frames
+/// (`--pose FILE.bvh:FIRST-LAST`) drapes each frame, in batches of [`FRAMES_PER_BATCH`],
+/// to numbered files.
 pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
     let (_, info) = learn::run::open_run(&args.run)?;
@@ -125,40 +127,104 @@ pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
     let (model, library) = load(ctx)?;
     let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
-    let resolved = pose_spec::resolve(&args.target.pose, &target, &library)?;
+    let poses = pose_spec::resolve_frames(&args.target.pose, &target, &library)?;
+    let many = poses.len() > 1;
+    let outputs: Vec<(PathBuf, Option<PathBuf>)> = poses
+        .iter()
+        .map(|&(k, _)| {
+            let png = args.target.png.as_deref();
+            if many {
+                (
+                    numbered(&args.target.output, k),
+                    png.map(|p| numbered(p, k)),
+                )
+            } else {
+                (args.target.output.clone(), png.map(PathBuf::from))
+            }
+        })
+        .collect();
+    super::check_outputs(&[Some(&outputs[0].0), outputs[0].1.as_deref()])?;
     let t = template(ctx, &info.garment, Some(info.resolution), &model)?;
     let statics = dataset::shard::Static::new(&t.mesh, &model, &canonical.vertices);
     let net = Predictor::open(&args.run, &statics)?;
     let loaded = t0.elapsed().as_secs_f64();
-    let t1 = std::time::Instant::now();
-    let posed = target.pose(&resolved.pose);
-    let warped = t.warp(&canonical, &target, &posed);
-    let p = body_params(&params.values(), &resolved.pose.rotations);
-    let x = net.prepare(&posed.vertices, resolved.pose.root_translation, p, &warped);
-    let pred = net.predict(&[&x]).pop().expect("one prediction");
-    let seconds = t1.elapsed().as_secs_f64();
-    let mesh = TriMesh::new(pred, t.mesh.triangles.clone());
-    let image = match &args.target.png {
-        Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &mesh)?)),
-        None => None,
-    };
-    let header = format!(
-        "drape predict: {} ({}) from {}, pose {}",
+    let mut seconds = 0.0;
+    for (chunk, files) in poses
+        .chunks(FRAMES_PER_BATCH)
+        .zip(outputs.chunks(FRAMES_PER_BATCH))
+    {
+        let t1 = std::time::Instant::now();
+        let posed: Vec<_> = chunk.iter().map(|(_, r)| target.pose(&r.pose)).collect();
+        let inputs: Vec<_> = chunk
+            .iter()
+            .zip(&posed)
+            .map(|((_, r), posed)| {
+                let warped = t.warp(&canonical, &target, posed);
+                let p = body_params(&params.values(), &r.pose.rotations);
+                net.prepare(&posed.vertices, r.pose.root_translation, p, &warped)
+            })
+            .collect();
+        let preds = net.predict(&inputs.iter().collect::<Vec<_>>());
+        seconds += t1.elapsed().as_secs_f64();
+        for ((((_, r), posed), pred), (obj, png)) in chunk.iter().zip(&posed).zip(preds).zip(files)
+        {
+            let mesh = TriMesh::new(pred, t.mesh.triangles.clone());
+            let image = match png {
+                Some(p) => Some((p.as_path(), render(&posed.vertices, &model, &mesh)?)),
+                None => None,
+            };
+            let header = format!(
+                "drape predict: {} ({}) from {}, pose {}",
+                info.garment,
+                net.config.model.variant.paper_name(),
+                args.run.display(),
+                r.description
+            );
+            write_outputs(&mesh, &header, Some(obj), image)?;
+        }
+    }
+    let what = format!(
+        "{} ({}, {} vertices)",
         info.garment,
         net.config.model.variant.paper_name(),
-        args.run.display(),
-        resolved.description
+        t.mesh.vertices.len()
     );
-    write_outputs(&mesh, &header, Some(&args.target.output), image)?;
-    println!(
-        "{} ({}, {} vertices): pose {}; warp + network {:.3} s (loading {:.2} s) -> {}",
-        info.garment,
-        net.config.model.variant.paper_name(),
-        mesh.vertices.len(),
-        resolved.description,
-        seconds,
-        loaded,
-        args.target.output.display()
-    );
+    if many {
+        println!(
+            "{what}: {} frames, {} to {}; warp + network {:.2} s, {:.1} ms per frame in batches of up to {FRAMES_PER_BATCH} (loading {:.2} s) -> {} to {}",
+            poses.len(),
+            poses[0].1.description,
+            poses[poses.len() - 1].1.description,
+            seconds,
+            1e3 * seconds / poses.len() as f64,
+            loaded,
+            outputs[0].0.display(),
+            outputs[outputs.len() - 1].0.display()
+        );
+    } else {
+        println!(
+            "{what}: pose {}; warp + network {:.3} s (loading {:.2} s) -> {}",
+            poses[0].1.description,
+            seconds,
+            loaded,
+            args.target.output.display()
+        );
+    }
     Ok(())
+}
+
+/// Frames of a BVH range draped together by `drape predict` (one batch of the network,
+/// its drapes shared among the workers).
+const FRAMES_PER_BATCH: usize = 16;
+
+/// `dir/name.ext` as `dir/name-0007.ext` for frame 7 of a range.
+fn numbered(path: &std::path::Path, k: usize) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+    let name = match path.extension() {
+        Some(ext) => format!("{stem}-{k:04}.{}", ext.to_string_lossy()),
+        None => format!("{stem}-{k:04}"),
+    };
+    path.with_file_name(name)
 }

@@ -37,7 +37,9 @@ pub fn resolve(
         && file.to_ascii_lowercase().ends_with(".bvh")
     {
         let frame: usize = frame.parse().with_context(|| {
-            format!("--pose {spec}: the frame after the file name must be a whole number")
+            format!(
+                "--pose {spec}: the frame after the file name must be a whole number (a range of frames, FILE.bvh:FIRST-LAST, is for drape predict)"
+            )
         })?;
         let motion = sim::body::bvh::Motion::load(Path::new(file))?;
         let pose = motion.retarget(body, frame)?;
@@ -66,4 +68,46 @@ pub fn resolve(
         pose,
         description: format!("key pose {spec}"),
     })
+}
+
+/// Resolves `--pose` for `drape predict`, which also takes a range of BVH frames,
+/// `FILE.bvh:FIRST-LAST` (both included; frames count from 0): one pose per frame, in
+/// order, with its frame number. Any other spec gives its one pose (frame 0).
+pub fn resolve_frames(
+    spec: &str,
+    body: &ShapedBody<'_>,
+    library: &PoseLibrary,
+) -> anyhow::Result<Vec<(usize, ResolvedPose)>> {
+    if let Some((file, range)) = spec.rsplit_once(':')
+        && file.to_ascii_lowercase().ends_with(".bvh")
+        && let Some((first, last)) = range.split_once('-')
+    {
+        let frame = |s: &str| {
+            s.parse::<usize>().with_context(|| {
+                format!("--pose {spec}: a range of frames is FIRST-LAST, whole numbers from 0")
+            })
+        };
+        let (first, last) = (frame(first)?, frame(last)?);
+        if first > last {
+            anyhow::bail!("--pose {spec}: the first frame comes after the last");
+        }
+        let motion = sim::body::bvh::Motion::load(Path::new(file))?;
+        if last >= motion.len() {
+            anyhow::bail!(
+                "--pose {spec}: {file} has {} frames (0 to {})",
+                motion.len(),
+                motion.len().saturating_sub(1)
+            );
+        }
+        return (first..=last)
+            .map(|f| {
+                let pose = ResolvedPose {
+                    pose: motion.retarget(body, f)?,
+                    description: format!("{file} frame {f}"),
+                };
+                Ok((f, pose))
+            })
+            .collect();
+    }
+    Ok(vec![(0, resolve(spec, body, library)?)])
 }
