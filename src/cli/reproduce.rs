@@ -30,7 +30,9 @@ pub struct ReproduceArgs {
     /// `docs`, else docs/).
     #[arg(long, value_name = "DIR")]
     docs: Option<PathBuf>,
-    /// Only write the report from what is finished; run nothing.
+    /// Only write the report from what is finished, and bring the plan's record
+    /// (`record`, a path from the repository's root, where `drape reproduce` runs) up to
+    /// date; generate, train and evaluate nothing.
     #[arg(long, conflicts_with = "status")]
     report_only: bool,
     /// Print where the plan stands (stages, hours, epochs, validation Edist, hours left)
