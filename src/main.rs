@@ -68,7 +68,7 @@ fn tune_allocator() {}
 
 /// Output piped into a program that stops reading (`drape data info DIR | head`) ends the
 /// process quietly, as with other command-line tools, instead of a panic on the next write.
-#[cfg(unix)]
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
 fn default_sigpipe() {
     // SAFETY: restores the signal's default action; called before any other thread exists.
@@ -77,7 +77,7 @@ fn default_sigpipe() {
     }
 }
 
-#[cfg(not(unix))]
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn default_sigpipe() {}
 
 fn main() -> std::process::ExitCode {

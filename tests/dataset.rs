@@ -596,6 +596,20 @@ fn poses_come_from_a_folder_of_bvh_files() {
         "{text}"
     );
     assert!(!motions.join("config.json").exists());
+    // What a start stopped before its config.json leaves does not count: empty partial/
+    // and records/ folders and a temporary file.
+    let leftover = t.path().join("leftover");
+    for sub in ["partial", "records"] {
+        std::fs::create_dir_all(leftover.join(sub)).unwrap();
+    }
+    std::fs::write(leftover.join(".config.json.1234-0.tmp"), "{").unwrap();
+    std::fs::write(
+        &cfg,
+        format!("{tiny}\n[poses]\nsource = \"bvh\"\ndir = \"motions\"\n"),
+    )
+    .unwrap();
+    let (ok, text) = run(drape().arg("gen").arg(&cfg).arg("-o").arg(&leftover));
+    assert!(ok, "{text}");
 }
 
 #[test]

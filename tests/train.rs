@@ -331,6 +331,9 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         .collect();
     written.sort();
     assert_eq!(written, ["tee-0001.obj", "tee-0002.obj", "tee-0003.obj"]);
+    // A range of one frame is numbered too.
+    let (ok, text) = predict(&format!("{b}:0-0"), &tmp.path().join("first.obj"));
+    assert!(ok && tmp.path().join("first-0000.obj").exists(), "{text}");
     let one = tmp.path().join("one.obj");
     let (ok, text) = predict(&format!("{b}:2"), &one);
     assert!(ok, "{text}");

@@ -337,6 +337,22 @@ fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, Da
 }
 
 /// Whether `dir` holds finished drapes: partial drapes or shard records.
+/// Whether `dir` holds anything but what a start of `drape gen` stopped before its
+/// config.json leaves: empty `partial/` and `records/` folders and temporary files.
+fn holds_other_files(dir: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    entries.flatten().any(|e| {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let empty_dir =
+            || std::fs::read_dir(e.path()).is_ok_and(|mut inner| inner.next().is_none());
+        let ours = ((name == "partial" || name == "records") && empty_dir())
+            || (name.starts_with('.') && name.ends_with(".tmp"));
+        !ours
+    })
+}
+
 fn holds_drapes(dir: &Path) -> bool {
     ["partial", "records"].iter().any(|sub| {
         std::fs::read_dir(dir.join(sub)).is_ok_and(|mut entries| entries.next().is_some())
@@ -364,13 +380,20 @@ pub fn generate(
     // A folder holds one dataset: refuse another config (before any work), another
     // garment material or drapes of another build.
     let stamp_path = dir.join("config.json");
-    if !stamp_path.exists()
-        && std::fs::read_dir(dir).is_ok_and(|mut entries| entries.next().is_some())
-    {
-        return Err(DatasetError::Invalid(format!(
-            "{} is not empty and holds no dataset (no config.json); use a new or empty folder",
-            dir.display()
-        )));
+    if !stamp_path.exists() && holds_other_files(dir) {
+        return Err(DatasetError::Invalid(
+            if dir.join("manifest.json").exists() {
+                format!(
+                    "{} holds a dataset not made here by drape gen (a manifest.json, no config.json: merged by drape data merge?); use a new or empty folder",
+                    dir.display()
+                )
+            } else {
+                format!(
+                    "{} is not empty and holds no dataset (no config.json); use a new or empty folder",
+                    dir.display()
+                )
+            },
+        ));
     }
     let old: Option<Stamp> = match std::fs::read(&stamp_path) {
         Ok(bytes) => Some(

@@ -35,8 +35,17 @@ impl Dataset {
     pub fn open(dir: &Path) -> Result<Self, DatasetError> {
         let mp = dir.join("manifest.json");
         let text = std::fs::read(&mp).map_err(|e| {
-            let hint = if dir.join("partial").is_dir() || dir.join("config.json").is_file() {
+            let part = std::fs::read_dir(dir).is_ok_and(|entries| {
+                entries.flatten().any(|e| {
+                    e.file_name()
+                        .to_string_lossy()
+                        .starts_with("manifest.part-")
+                })
+            });
+            let hint = if part {
                 " (a dataset generated with --shard needs `drape data merge` first)"
+            } else if dir.join("config.json").is_file() {
+                " (its generation has not finished: the same `drape gen` command resumes it)"
             } else {
                 ""
             };

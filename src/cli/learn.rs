@@ -128,18 +128,18 @@ pub fn predict(args: PredictArgs, ctx: &Context) -> anyhow::Result<()> {
     let canonical = model.shape(&ShapeParams::default())?;
     let target = model.shape(&params)?;
     let poses = pose_spec::resolve_frames(&args.target.pose, &target, &library)?;
-    let many = poses.len() > 1;
+    // A range of frames (even of one) writes numbered files.
+    let many = poses[0].0.is_some();
     let outputs: Vec<(PathBuf, Option<PathBuf>)> = poses
         .iter()
-        .map(|&(k, _)| {
+        .map(|&(frame, _)| {
             let png = args.target.png.as_deref();
-            if many {
-                (
+            match frame {
+                Some(k) => (
                     numbered(&args.target.output, k),
                     png.map(|p| numbered(p, k)),
-                )
-            } else {
-                (args.target.output.clone(), png.map(PathBuf::from))
+                ),
+                None => (args.target.output.clone(), png.map(PathBuf::from)),
             }
         })
         .collect();

@@ -72,12 +72,12 @@ pub fn resolve(
 
 /// Resolves `--pose` for `drape predict`, which also takes a range of BVH frames,
 /// `FILE.bvh:FIRST-LAST` (both included; frames count from 0): one pose per frame, in
-/// order, with its frame number. Any other spec gives its one pose (frame 0).
+/// order, with its frame number (`Some`). Any other spec gives its one pose (`None`).
 pub fn resolve_frames(
     spec: &str,
     body: &ShapedBody<'_>,
     library: &PoseLibrary,
-) -> anyhow::Result<Vec<(usize, ResolvedPose)>> {
+) -> anyhow::Result<Vec<(Option<usize>, ResolvedPose)>> {
     if let Some((file, range)) = spec.rsplit_once(':')
         && file.to_ascii_lowercase().ends_with(".bvh")
         && let Some((first, last)) = range.split_once('-')
@@ -105,9 +105,9 @@ pub fn resolve_frames(
                     pose: motion.retarget(body, f)?,
                     description: format!("{file} frame {f}"),
                 };
-                Ok((f, pose))
+                Ok((Some(f), pose))
             })
             .collect();
     }
-    Ok(vec![(0, resolve(spec, body, library)?)])
+    Ok(vec![(None, resolve(spec, body, library)?)])
 }

@@ -7,7 +7,7 @@
 //! `bind_bary` f32 [V, 3]. Metadata key `drape`: JSON [`TemplateMeta`].
 
 use std::path::Path;
-use std::sync::{Mutex, OnceLock};
+use std::sync::OnceLock;
 
 use glam::Vec3;
 use safetensors::tensor::{Dtype, SafeTensors};
@@ -95,16 +95,12 @@ pub struct Template {
 
 /// The template's move under each of the body model's shape targets, for
 /// [`Template::reshape`]: one slot per target, filled the first time a body needs it.
-/// The lock lets one caller make the missing moves while others wait, rather than all
-/// making the same ones.
-#[derive(Debug, Default)]
-pub(crate) struct ShapeMoves(OnceLock<Vec<OnceLock<TargetMove>>>, Mutex<()>);
-
-impl Clone for ShapeMoves {
-    fn clone(&self) -> Self {
-        Self(self.0.clone(), Mutex::new(()))
-    }
-}
+/// No lock: two warps that need the same missing targets at once (the first drapes of
+/// `drape gen`'s workers) both make them and the first to finish fills the slot. A lock
+/// held across the smoothing's parallel jobs could deadlock: a thread waiting for a stolen
+/// job may run another drape's warp, which would wait for the lock it holds.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct ShapeMoves(OnceLock<Vec<OnceLock<TargetMove>>>);
 
 /// One shape target's unit move of the template: its bound points' deltas, and those
 /// smoothed as [`Template::reshape`] smooths.
@@ -459,7 +455,6 @@ impl Template {
         if slots.len() != model.targets.len() || targets.iter().all(|&t| slots[t].get().is_some()) {
             return;
         }
-        let _making = self.shape_moves.1.lock().unwrap_or_else(|e| e.into_inner());
         let missing: Vec<usize> = targets
             .iter()
             .copied()
@@ -471,7 +466,7 @@ impl Template {
             .collect();
         let smoothed = super::skin::smooth_many(&self.mesh, bound.clone(), self.reshape_rounds());
         for ((t, bound), smoothed) in missing.into_iter().zip(bound).zip(smoothed) {
-            // Only this caller fills slots while it holds the lock.
+            // Another warp may have filled it meanwhile, with the same bits.
             let _ = slots[t].set(TargetMove { bound, smoothed });
         }
     }
