@@ -336,7 +336,6 @@ fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, Da
     Ok(record)
 }
 
-/// Whether `dir` holds finished drapes: partial drapes or shard records.
 /// Whether `dir` holds anything but what a start of `drape gen` stopped before its
 /// config.json leaves: empty `partial/` and `records/` folders and temporary files.
 fn holds_other_files(dir: &Path) -> bool {
@@ -353,6 +352,7 @@ fn holds_other_files(dir: &Path) -> bool {
     })
 }
 
+/// Whether `dir` holds finished drapes: partial drapes or shard records.
 fn holds_drapes(dir: &Path) -> bool {
     ["partial", "records"].iter().any(|sub| {
         std::fs::read_dir(dir.join(sub)).is_ok_and(|mut entries| entries.next().is_some())

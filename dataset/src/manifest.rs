@@ -28,9 +28,13 @@ pub fn short_revision(rev: &str) -> String {
 
 /// The first 12 hex digits of a sha256, or `not recorded`.
 pub fn short_sha(sha: &Option<String>) -> String {
-    sha.as_deref().map_or("not recorded".to_string(), |s| {
-        s[..s.len().min(12)].to_string()
-    })
+    sha.as_deref()
+        .map_or("not recorded".to_string(), |s| short_hex(s).to_string())
+}
+
+/// The first 12 hex digits of a sha256 (all of a shorter string).
+pub fn short_hex(sha: &str) -> &str {
+    &sha[..sha.len().min(12)]
 }
 
 /// One sample.

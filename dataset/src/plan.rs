@@ -135,19 +135,15 @@ impl Poser {
         match &c.poses {
             PoseSource::Prior { library: None } => Ok(Poser::Prior(PosePrior::new(library))),
             PoseSource::Prior { library: Some(p) } => {
-                let text = std::fs::read_to_string(p).map_err(|e| {
+                let bad = |e: &dyn std::fmt::Display| {
                     DatasetError::Invalid(format!(
                         "the config's [poses] library {}: {e}",
                         p.display()
                     ))
-                })?;
-                let lib =
-                    PoseLibrary::from_toml(&model.skeleton, &text, &model.t_pose).map_err(|e| {
-                        DatasetError::Invalid(format!(
-                            "the config's [poses] library {}: {e}",
-                            p.display()
-                        ))
-                    })?;
+                };
+                let text = std::fs::read_to_string(p).map_err(|e| bad(&e))?;
+                let lib = PoseLibrary::from_toml(&model.skeleton, &text, &model.t_pose)
+                    .map_err(|e| bad(&e))?;
                 Ok(Poser::Prior(PosePrior::new(lib)))
             }
             PoseSource::Bvh { dir } => {

@@ -50,15 +50,21 @@ fn metrics_file(path: &Path) -> Result<PathBuf, EvalError> {
     }
 }
 
+/// An evaluation's metrics file ([`metrics_file`]) and its JSON.
+fn read_metrics(path: &Path) -> Result<(PathBuf, serde_json::Value), EvalError> {
+    let file = metrics_file(path)?;
+    let bytes = std::fs::read(&file)
+        .map_err(|e| EvalError::Invalid(format!("cannot read {}: {e}", file.display())))?;
+    let v = serde_json::from_slice(&bytes)
+        .map_err(|e| EvalError::Invalid(format!("{}: not JSON: {e}", file.display())))?;
+    Ok((file, v))
+}
+
 /// The drapes an evaluation was made on, from the provenance `drape eval` writes into its
 /// `metrics.json`: the dataset manifest's sha256 and the split. `None` for a file without
 /// one (the run records in `docs/eval/`).
 fn evaluated_on(path: &Path) -> Result<Option<(String, String)>, EvalError> {
-    let file = metrics_file(path)?;
-    let bytes = std::fs::read(&file)
-        .map_err(|e| EvalError::Invalid(format!("cannot read {}: {e}", file.display())))?;
-    let v: serde_json::Value = serde_json::from_slice(&bytes)
-        .map_err(|e| EvalError::Invalid(format!("{}: not JSON: {e}", file.display())))?;
+    let (_, v) = read_metrics(path)?;
     let p = &v["provenance"];
     Ok(p["manifest_sha256"]
         .as_str()
@@ -76,9 +82,9 @@ pub fn check_same_drapes(a: &Path, b: &Path) -> Result<(), EvalError> {
             return Err(EvalError::Invalid(format!(
                 "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset",
                 a.display(),
-                &ma[..ma.len().min(12)],
+                dataset::manifest::short_hex(&ma),
                 b.display(),
-                &mb[..mb.len().min(12)],
+                dataset::manifest::short_hex(&mb),
             )));
         }
     }
@@ -92,11 +98,7 @@ pub fn check_same_drapes(a: &Path, b: &Path) -> Result<(), EvalError> {
 /// skipped; figures that are not finite numbers (a diverged prediction's) are left out
 /// are kept as NaN; [`compare`] counts and leaves them out.
 pub fn load(path: &Path, method: &str) -> Result<PerSample, EvalError> {
-    let file = metrics_file(path)?;
-    let bytes = std::fs::read(&file)
-        .map_err(|e| EvalError::Invalid(format!("cannot read {}: {e}", file.display())))?;
-    let v: serde_json::Value = serde_json::from_slice(&bytes)
-        .map_err(|e| EvalError::Invalid(format!("{}: not JSON: {e}", file.display())))?;
+    let (file, v) = read_metrics(path)?;
     let rows = v["samples"].as_array().ok_or_else(|| {
         EvalError::Invalid(format!(
             "{} has no per-sample rows (`samples`): only reports of `drape eval` and records that kept per-drape figures can be paired",

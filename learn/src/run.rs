@@ -118,9 +118,9 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 "{} was trained on dataset {} with manifest sha256 {}..., not on this data ({}, manifest {}...): resume it with the data it started on, or use another -o folder",
                 run.display(),
                 old.dataset,
-                &old.manifest_sha256[..old.manifest_sha256.len().min(12)],
+                dataset::manifest::short_hex(&old.manifest_sha256),
                 info.dataset,
-                &info.manifest_sha256[..info.manifest_sha256.len().min(12)],
+                dataset::manifest::short_hex(&info.manifest_sha256),
             )))
         }
         Some(_) => Ok(()),

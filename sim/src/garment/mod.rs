@@ -339,20 +339,31 @@ impl Library {
     /// loads and was built from today's definition and build code (else [`Self::get`]
     /// builds it again).
     pub fn is_current(&self, name: &str, vertices: usize, model: &BodyModel) -> bool {
-        let Some((_, text)) = def::BUILT_IN.iter().find(|(n, _)| *n == name) else {
-            return false;
-        };
-        let (Ok(key), Ok(t)) = (
-            self.key(text),
-            Template::load(
-                &self.built_path(name, vertices),
-                model.triangles.len(),
-                model.skeleton.len(),
-            ),
-        ) else {
-            return false;
-        };
-        t.meta.key == key
+        def::BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == name)
+            .is_some_and(|(_, text)| {
+                matches!(self.cached(name, text, vertices, model), Ok(Some(_)))
+            })
+    }
+
+    /// Built-in garment `name`'s (definition `text`) cached template at `vertices`, if it
+    /// loads and its key is today's.
+    fn cached(
+        &self,
+        name: &str,
+        text: &str,
+        vertices: usize,
+        model: &BodyModel,
+    ) -> Result<Option<Template>, GarmentError> {
+        let key = self.key(text)?;
+        Ok(Template::load(
+            &self.built_path(name, vertices),
+            model.triangles.len(),
+            model.skeleton.len(),
+        )
+        .ok()
+        .filter(|t| t.meta.key == key))
     }
 
     /// A garment by name: a built-in one at `vertices` (from the cache, built and cached on
@@ -367,15 +378,10 @@ impl Library {
         let bones = model.skeleton.len();
         let tris = model.triangles.len();
         if let Some((_, text)) = def::BUILT_IN.iter().find(|(n, _)| *n == name) {
-            let path = self.built_path(name, vertices);
-            let key = self.key(text)?;
-            if path.exists() {
-                if let Ok(t) = Template::load(&path, tris, bones) {
-                    if t.meta.key == key {
-                        return Ok(t);
-                    }
-                }
+            if let Some(t) = self.cached(name, text, vertices, model)? {
+                return Ok(t);
             }
+            let path = self.built_path(name, vertices);
             built(&format!(
                 "building {name} at {vertices} vertices (cached in {})",
                 path.display()

@@ -193,6 +193,18 @@ pub fn neighbours(mesh: &TriMesh) -> Vec<Vec<u32>> {
     nb
 }
 
+/// [`neighbours`] flattened for the smoothing rounds: vertex `v`'s neighbours are
+/// `flat[start[v]..start[v + 1]]`.
+fn flat_neighbours(mesh: &TriMesh) -> (Vec<usize>, Vec<u32>) {
+    let nb = neighbours(mesh);
+    let mut start = Vec::with_capacity(nb.len() + 1);
+    start.push(0usize);
+    for l in &nb {
+        start.push(start.last().unwrap() + l.len());
+    }
+    (start, nb.into_iter().flatten().collect())
+}
+
 /// Meshes from this many vertices run [`smooth`]'s rounds in parallel; below it a round is
 /// cheaper than handing it to the thread pool.
 const SMOOTH_PARALLEL_FROM: usize = 4_096;
@@ -206,13 +218,7 @@ const SMOOTH_PARALLEL_FROM: usize = 4_096;
 /// hundreds of rounds at 10k vertices (`Template::reshape`).
 pub fn smooth(mesh: &TriMesh, field: Vec<Vec3>, rounds: usize) -> Vec<Vec3> {
     use rayon::prelude::*;
-    let nb = neighbours(mesh);
-    let mut start = Vec::with_capacity(nb.len() + 1);
-    start.push(0usize);
-    for l in &nb {
-        start.push(start.last().unwrap() + l.len());
-    }
-    let flat: Vec<u32> = nb.into_iter().flatten().collect();
+    let (start, flat) = flat_neighbours(mesh);
     let mut field = field;
     let mut next = vec![Vec3::ZERO; field.len()];
     for _ in 0..rounds {
@@ -249,7 +255,7 @@ const SMOOTH_TOGETHER: usize = 4;
 /// warp's shape moves smooth one field per body shape target (`Template::reshape`), and
 /// one at a time, their loads of the neighbour lists and of single vectors were the cost
 /// (docs/bench.md).
-pub fn smooth_many(mesh: &TriMesh, fields: Vec<Vec<Vec3>>, rounds: usize) -> Vec<Vec<Vec3>> {
+pub fn smooth_many(mesh: &TriMesh, fields: &[Vec<Vec3>], rounds: usize) -> Vec<Vec<Vec3>> {
     use rayon::prelude::*;
     const W: usize = 3 * SMOOTH_TOGETHER;
     let n = mesh.vertices.len();
@@ -257,13 +263,7 @@ pub fn smooth_many(mesh: &TriMesh, fields: Vec<Vec<Vec3>>, rounds: usize) -> Vec
         fields.iter().all(|f| f.len() == n),
         "every field has one vector per vertex"
     );
-    let nb = neighbours(mesh);
-    let mut start = Vec::with_capacity(n + 1);
-    start.push(0usize);
-    for l in &nb {
-        start.push(start.last().unwrap() + l.len());
-    }
-    let flat: Vec<u32> = nb.into_iter().flatten().collect();
+    let (start, flat) = flat_neighbours(mesh);
     let groups: Vec<&[Vec<Vec3>]> = fields.chunks(SMOOTH_TOGETHER).collect();
     let smoothed: Vec<Vec<Vec<Vec3>>> = groups
         .par_iter()
@@ -364,7 +364,7 @@ mod tests {
             })
             .collect();
         for rounds in [0, 1, 23] {
-            let together = smooth_many(&mesh, fields.clone(), rounds);
+            let together = smooth_many(&mesh, &fields, rounds);
             assert_eq!(together.len(), fields.len());
             for (k, f) in fields.iter().enumerate() {
                 assert_eq!(
@@ -375,7 +375,7 @@ mod tests {
             }
             assert_eq!(together[5][n - 1], fields[5][n - 1]);
         }
-        assert!(smooth_many(&mesh, Vec::new(), 3).is_empty());
+        assert!(smooth_many(&mesh, &[], 3).is_empty());
     }
 
     #[test]

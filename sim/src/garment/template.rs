@@ -452,7 +452,7 @@ impl Template {
     /// ([`super::skin::smooth_many`]).
     fn make_target_moves(&self, model: &BodyModel, targets: &[usize]) {
         let slots = self.shape_slots(model);
-        if slots.len() != model.targets.len() || targets.iter().all(|&t| slots[t].get().is_some()) {
+        if slots.len() != model.targets.len() {
             return;
         }
         let missing: Vec<usize> = targets
@@ -460,11 +460,14 @@ impl Template {
             .copied()
             .filter(|&t| slots[t].get().is_none())
             .collect();
+        if missing.is_empty() {
+            return;
+        }
         let bound: Vec<Vec<Vec3>> = missing
             .iter()
             .map(|&t| self.target_bound(model, t))
             .collect();
-        let smoothed = super::skin::smooth_many(&self.mesh, bound.clone(), self.reshape_rounds());
+        let smoothed = super::skin::smooth_many(&self.mesh, &bound, self.reshape_rounds());
         for ((t, bound), smoothed) in missing.into_iter().zip(bound).zip(smoothed) {
             // Another warp may have filled it meanwhile, with the same bits.
             let _ = slots[t].set(TargetMove { bound, smoothed });
