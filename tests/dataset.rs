@@ -256,6 +256,61 @@ fn parts_merge_into_the_same_dataset() {
     assert!(!ok && text.contains("--shard"), "{text}");
 }
 
+/// Two `drape gen` runs never write one folder at once. A whole run refuses a folder
+/// that another run writes; a part refuses the whole run's folder and its own part's, and
+/// runs beside another part (a cluster job's parts may share a folder). The locks are the
+/// operating system's on open files, here held by the test process.
+#[test]
+fn a_folder_another_gen_is_writing_is_refused() {
+    let (_, reference_dir) = reference();
+    let t = tempfile::tempdir().unwrap();
+    let d = t.path().join("d");
+    std::fs::create_dir_all(&d).unwrap();
+    let lock = |name: &str, shared: bool| {
+        let f = std::fs::File::options()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(d.join(name))
+            .unwrap();
+        if shared { f.lock_shared() } else { f.lock() }.unwrap();
+        f
+    };
+    let refused = |extra: &[&str], what: &str| {
+        let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&d).args(extra));
+        assert!(
+            !ok && text.contains("another drape gen is writing") && text.contains(what),
+            "{extra:?}: {text}"
+        );
+    };
+    {
+        let _whole = lock(".gen.lock", false);
+        refused(&[], "this dataset or one of its parts");
+        refused(&["--shard", "1/2"], "the whole dataset");
+    }
+    {
+        let _parts = lock(".gen.lock", true);
+        let _one = lock(".gen.part-1-of-2.lock", false);
+        refused(&[], "this dataset or one of its parts");
+        refused(&["--shard", "1/2"], "part 1/2");
+        // Nothing was written by the refused runs.
+        assert!(!d.join("config.json").exists());
+        gen_into(&d, &["--shard", "0/2"]);
+        assert!(d.join("manifest.part-0-of-2.json").exists());
+    }
+    // The locks end with their holder: the whole run takes over part 0's shards and
+    // finishes with the uninterrupted run's bytes.
+    let text = gen_into(&d, &[]);
+    assert!(!text.contains("0 drapes this run"), "{text}");
+    let shards = |dir: &Path| -> Vec<_> {
+        shard_bytes(dir)
+            .into_iter()
+            .filter(|(n, _)| n != "static.safetensors")
+            .collect()
+    };
+    assert_eq!(shards(&d), shards(reference_dir));
+}
+
 #[test]
 fn tampered_and_truncated_shards_are_named() {
     let (_, dir) = reference();

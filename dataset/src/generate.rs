@@ -10,7 +10,9 @@
 //!   timings, and the shard's sha256;
 //! - `SPLIT-NNNNN.safetensors`: the shards;
 //! - `manifest.json` (or `manifest.part-I-of-N.json` for `--shard I/N`, joined by
-//!   `drape data merge`).
+//!   `drape data merge`);
+//! - `.gen.lock` and `.gen.part-I-of-N.lock`: empty files that the running generation
+//!   holds locks on, so that two runs never write one folder ([`lock_folder`]).
 //!
 //! Killing the program at any moment leaves only whole files; running it again skips the
 //! shards and drapes already done, and ends with shards byte-identical to an uninterrupted
@@ -336,8 +338,65 @@ fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, Da
     Ok(record)
 }
 
+/// The lock file of a whole run; a part's run holds it shared.
+const LOCK_FILE: &str = ".gen.lock";
+
+/// Takes the folder's locks for this run, so that two runs never write the same files: a
+/// whole run holds [`LOCK_FILE`] alone; a part's run holds it shared with the other parts
+/// (a cluster job's parts may write into one folder at once) and its own part's lock file
+/// alone. Operating-system locks on open files: they end with the process, however it
+/// ends, so no stale lock is ever left to remove. Creates `dir` if it is missing.
+fn lock_folder(dir: &Path, opts: GenOptions) -> Result<Vec<std::fs::File>, DatasetError> {
+    let io = |path: PathBuf| move |source| DatasetError::Io { path, source };
+    std::fs::create_dir_all(dir).map_err(io(dir.to_path_buf()))?;
+    let open = |name: &str| {
+        let path = dir.join(name);
+        std::fs::File::options()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .map_err(io(path))
+    };
+    let busy = |what: &str| {
+        DatasetError::Invalid(format!(
+            "another drape gen is writing {what} into {}; wait for it to finish or stop it \
+             (its lock ends with its process)",
+            dir.display()
+        ))
+    };
+    let take = |file: &std::fs::File, shared: bool, what: &str| {
+        let taken = if shared {
+            file.try_lock_shared()
+        } else {
+            file.try_lock()
+        };
+        match taken {
+            Ok(()) => Ok(()),
+            Err(std::fs::TryLockError::WouldBlock) => Err(busy(what)),
+            // A file system without locks (some network mounts): run unguarded, as before
+            // locks existed.
+            Err(std::fs::TryLockError::Error(e)) if e.kind() == std::io::ErrorKind::Unsupported => {
+                Ok(())
+            }
+            Err(std::fs::TryLockError::Error(e)) => Err(io(dir.join(LOCK_FILE))(e)),
+        }
+    };
+    let whole = open(LOCK_FILE)?;
+    if opts.parts == 1 {
+        take(&whole, false, "this dataset or one of its parts")?;
+        return Ok(vec![whole]);
+    }
+    take(&whole, true, "the whole dataset")?;
+    let name = format!(".gen.part-{}-of-{}.lock", opts.part, opts.parts);
+    let mine = open(&name)?;
+    take(&mine, false, &format!("part {}/{}", opts.part, opts.parts))?;
+    Ok(vec![whole, mine])
+}
+
 /// Whether `dir` holds anything but what a start of `drape gen` stopped before its
-/// config.json leaves: empty `partial/` and `records/` folders and temporary files.
+/// config.json leaves: empty `partial/` and `records/` folders, temporary files and the
+/// lock files.
 fn holds_other_files(dir: &Path) -> bool {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return false;
@@ -347,7 +406,7 @@ fn holds_other_files(dir: &Path) -> bool {
         let empty_dir =
             || std::fs::read_dir(e.path()).is_ok_and(|mut inner| inner.next().is_none());
         let ours = ((name == "partial" || name == "records") && empty_dir())
-            || (name.starts_with('.') && name.ends_with(".tmp"));
+            || (name.starts_with('.') && (name.ends_with(".tmp") || name.ends_with(".lock")));
         !ours
     })
 }
@@ -377,6 +436,7 @@ pub fn generate(
             opts.parts.saturating_sub(1)
         )));
     }
+    let _locks = lock_folder(dir, opts)?;
     // A folder holds one dataset: refuse another config (before any work), another
     // garment material or drapes of another build.
     let stamp_path = dir.join("config.json");
