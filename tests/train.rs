@@ -210,6 +210,23 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     );
     // Refused before its folder was written: a retry with the right widths can use it.
     assert!(!tmp.path().join("ft-paper/config.toml").exists());
+    // And a fine-tune from a run trained on a mesh with other triangles.
+    let run_json = std::fs::read_to_string(run_dir.join("run.json")).unwrap();
+    let info: serde_json::Value = serde_json::from_str(&run_json).unwrap();
+    let sha = info["faces_sha256"].as_str().unwrap();
+    std::fs::write(
+        run_dir.join("run.json"),
+        run_json.replace(sha, &"0".repeat(64)),
+    )
+    .unwrap();
+    let (ok, text) = train(
+        &local,
+        &data,
+        &tmp.path().join("ft-faces"),
+        &["--init".as_ref(), run_dir.as_os_str()],
+    );
+    assert!(!ok && text.contains("other triangles"), "{text}");
+    std::fs::write(run_dir.join("run.json"), &run_json).unwrap();
     // Resuming a run at other widths names them.
     let (ok, text) = train(
         &cfg,
@@ -407,6 +424,39 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
             );
         }
     }
+
+    // The run records its mesh's triangles: a garment of as many vertices but other
+    // triangles (an imported template replaced by another mesh) is refused, by the API and
+    // by `drape predict`; a run made before the record is opened as before.
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run_dir.join("run.json")).unwrap()).unwrap();
+    assert_eq!(
+        info["faces_sha256"].as_str(),
+        Some(learn::run::faces_sha256(&d.statics.garment_triangles).as_str())
+    );
+    let mut other = d.statics.clone();
+    let t0 = other.garment_triangles[0];
+    other.garment_triangles[0] = [t0[0], t0[2], t0[1]];
+    let e = learn::predict::Predictor::open(&run_dir, &other).unwrap_err();
+    assert!(e.to_string().contains("other triangles"), "{e}");
+    let run_json = std::fs::read_to_string(run_dir.join("run.json")).unwrap();
+    let sha = info["faces_sha256"].as_str().unwrap();
+    std::fs::write(
+        run_dir.join("run.json"),
+        run_json.replace(sha, &"0".repeat(64)),
+    )
+    .unwrap();
+    let (ok, text) = run(drape()
+        .args(["predict", "--model"])
+        .arg(&run_dir)
+        .arg("-o")
+        .arg(&obj));
+    assert!(!ok && text.contains("other triangles"), "{text}");
+    let mut old: serde_json::Value = serde_json::from_str(&run_json).unwrap();
+    old.as_object_mut().unwrap().remove("faces_sha256");
+    std::fs::write(run_dir.join("run.json"), old.to_string()).unwrap();
+    assert!(learn::predict::Predictor::open(&run_dir, &other).is_ok());
+    std::fs::write(run_dir.join("run.json"), &run_json).unwrap();
 
     // drape eval: the report folder, and its figures against ones computed here.
     let report = tmp.path().join("report");

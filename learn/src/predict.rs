@@ -48,8 +48,8 @@ pub struct Timing {
 impl Predictor {
     /// Loads `run`'s best weights (and its prior, `prior.safetensors`, if the model
     /// has one) for the garment and body described by `statics` (the dataset's static
-    /// file, or the template and body model). Refuses a garment whose vertex count is not
-    /// the run's.
+    /// file, or the template and body model). Refuses a garment whose vertex count or,
+    /// for runs that record them, triangles are not the run's.
     pub fn open(run: &Path, statics: &Static) -> Result<Self, LearnError> {
         let (config, info) = open_run(run)?;
         let n = statics.garment_vertices.len();
@@ -61,6 +61,7 @@ impl Predictor {
                 info.vertices
             )));
         }
+        crate::run::check_faces(run, &info, &statics.garment_triangles)?;
         let best = run.join("best.bpk");
         if !best.exists() {
             return Err(LearnError::Mismatch(format!(
@@ -134,6 +135,7 @@ impl Predictor {
                 manifest_sha256: String::new(),
                 init: None,
                 curvature_scales: None,
+                faces_sha256: None,
             },
             device,
             workers: Workers::new(0, usize::MAX),

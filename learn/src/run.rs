@@ -54,6 +54,37 @@ pub fn manifest_sha256(data: &Path) -> Result<String, LearnError> {
     Ok(dataset::generate::sha256(&bytes))
 }
 
+/// sha256 of a garment's triangles (their vertex indices as little-endian u32s): two
+/// meshes with the same vertex count but other faces give a network other convolution
+/// neighbourhoods, and its predictions would be meaningless.
+pub fn faces_sha256(triangles: &[[u32; 3]]) -> String {
+    let bytes: Vec<u8> = triangles
+        .iter()
+        .flatten()
+        .flat_map(|i| i.to_le_bytes())
+        .collect();
+    dataset::generate::sha256(&bytes)
+}
+
+/// Refuses a garment whose triangles are not those `run` was trained on (when its
+/// `run.json` records them): an imported template replaced by another mesh with as many
+/// vertices, or a built-in one whose definition changed since.
+pub fn check_faces(run: &Path, info: &RunInfo, triangles: &[[u32; 3]]) -> Result<(), LearnError> {
+    let now = faces_sha256(triangles);
+    match &info.faces_sha256 {
+        Some(trained) if *trained != now => Err(LearnError::Mismatch(format!(
+            "{} was trained on a {} mesh with other triangles (faces sha256 {}, this template's {}): \
+             the template was replaced or its definition changed since; train on data of this \
+             template, or restore the one the run was trained on",
+            run.display(),
+            info.garment,
+            dataset::manifest::short_hex(trained),
+            dataset::manifest::short_hex(&now),
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// Creates the run folder with `config.toml` and `run.json`, or checks that an existing
 /// one was made by the same config on the same dataset (resume).
 pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Result<(), LearnError> {
@@ -170,6 +201,17 @@ pub fn check_init(
             info.garment,
             info.vertices
         )));
+    }
+    if let (Some(theirs), Some(ours)) = (&old.faces_sha256, &info.faces_sha256) {
+        if theirs != ours {
+            return Err(LearnError::Mismatch(format!(
+                "{} was trained on a {} mesh with other triangles than this data's (faces sha256 {} against {})",
+                init.display(),
+                old.garment,
+                dataset::manifest::short_hex(theirs),
+                dataset::manifest::short_hex(ours),
+            )));
+        }
     }
     Ok(())
 }

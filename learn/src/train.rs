@@ -447,6 +447,10 @@ pub struct RunInfo {
     /// Curvature weight factors measured at the start of the run (`loss.rescale_curvature`).
     #[serde(default)]
     pub curvature_scales: Option<CurvatureScales>,
+    /// sha256 of the garment's triangles ([`crate::run::faces_sha256`]): the mesh the
+    /// network's convolutions were trained on. Absent in runs made before session 50.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub faces_sha256: Option<String>,
 }
 
 pub(crate) fn ck(path: &Path) -> impl Fn(burn::store::RecordError) -> LearnError + '_ {
@@ -617,6 +621,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         manifest_sha256: crate::run::manifest_sha256(&opts.data)?,
         init: opts.init.clone(),
         curvature_scales: None,
+        faces_sha256: Some(crate::run::faces_sha256(&data.statics.garment_triangles)),
     };
     // A fresh fine-tune: `init` is checked before the run's folder is written, so that a
     // refused one leaves nothing behind; its weights are loaded below.
