@@ -79,6 +79,52 @@ fn weights(ui: &[f32], uj: &[f32], c: &[f32], q: &mut [f32]) {
     }
 }
 
+/// The two factors of every vertex's head weights, `[B * N, 2 M]`: with `a_h = u_h . x`,
+/// `P_h = exp(a_h - max a)` and `Q_h = exp(c_h - a_h - max(c - a))`. The softmax of slot
+/// (i, j) over the heads is then `P_j,h Q_i,h / sum_h' P_j,h' Q_i,h'`: the same numbers as
+/// exponentiating `u_h . x_j - u_h . x_i + c_h` per slot, with an exponential per vertex and
+/// head instead of per slot and head (a tenth of them on a triangle mesh; docs/bench.md,
+/// "FeaStNet's head weights factored").
+fn head_factors(ux: &[f32], c: &[f32], m: usize) -> Vec<f32> {
+    let mut pq = vec![0.0f32; ux.len() * 2];
+    pq.par_chunks_mut(2 * m)
+        .zip(ux.par_chunks(m))
+        .with_min_len(VERTICES_PER_TASK * 4)
+        .for_each(|(o, a)| {
+            let (p, q) = o.split_at_mut(m);
+            let top = a.iter().fold(f32::NEG_INFINITY, |t, &v| t.max(v));
+            let top_q = a
+                .iter()
+                .zip(c)
+                .fold(f32::NEG_INFINITY, |t, (&v, &ch)| t.max(ch - v));
+            for h in 0..m {
+                p[h] = (a[h] - top).exp();
+                q[h] = (c[h] - a[h] - top_q).exp();
+            }
+        });
+    pq
+}
+
+/// q over the heads for one slot from the factors of [`head_factors`] (`pj` of the
+/// neighbour, `qi` of the vertex), into `q`. Where every product underflows (logits
+/// spread over more than about 87 between the two ends' maxima, which trained networks do
+/// not reach) it falls back to [`weights`].
+#[inline]
+fn weights_factored(pj: &[f32], qi: &[f32], (ui, uj, c): (&[f32], &[f32], &[f32]), q: &mut [f32]) {
+    let mut sum = 0.0;
+    for h in 0..q.len() {
+        q[h] = pj[h] * qi[h];
+        sum += q[h];
+    }
+    if sum < 1e-30 || !sum.is_finite() {
+        return weights(ui, uj, c, q);
+    }
+    let inv = 1.0 / sum;
+    for qh in q.iter_mut() {
+        *qh *= inv;
+    }
+}
+
 /// The forward pass on the host.
 ///
 /// # Shapes
@@ -91,6 +137,7 @@ pub fn feast_forward(
     [b, n, ch, m]: [usize; 4],
 ) -> Vec<f32> {
     let k = slots.k;
+    let pq = head_factors(ux, c, m);
     let mut z = vec![0.0f32; b * n * m * ch];
     z.par_chunks_mut(m * ch)
         .enumerate()
@@ -101,12 +148,14 @@ pub fn feast_forward(
                 let (s, i) = (row / n, row % n);
                 let base = s * n;
                 let ui = &ux[row * m..(row + 1) * m];
+                let qi = &pq[row * 2 * m + m..(row + 1) * 2 * m];
                 for slot in i * k..(i + 1) * k {
                     if !slots.used[slot] {
                         continue;
                     }
                     let j = base + slots.index[slot] as usize;
-                    weights(ui, &ux[j * m..(j + 1) * m], c, q);
+                    let uj = &ux[j * m..(j + 1) * m];
+                    weights_factored(&pq[j * 2 * m..j * 2 * m + m], qi, (ui, uj, c), q);
                     let xj = &x[j * ch..(j + 1) * ch];
                     for (zh, &w) in zi.chunks_exact_mut(ch).zip(q.iter()) {
                         for (o, &v) in zh.iter_mut().zip(xj) {
@@ -138,6 +187,7 @@ pub fn feast_backward(
     [b, n, ch, m]: [usize; 4],
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let k = slots.k;
+    let pq = head_factors(ux, c, m);
     let mut gx = vec![0.0f32; b * n * ch];
     let mut gux = vec![0.0f32; b * n * m];
     let gc_parts: Vec<Vec<f32>> = gx
@@ -148,6 +198,7 @@ pub fn feast_backward(
             let xs = &x[s * n * ch..(s + 1) * n * ch];
             let uxs = &ux[s * n * m..(s + 1) * n * m];
             let gzs = &gz[s * n * m * ch..(s + 1) * n * m * ch];
+            let pqs = &pq[s * n * 2 * m..(s + 1) * n * 2 * m];
             let mut gc = vec![0.0f32; m];
             let (mut q, mut g) = (vec![0.0f32; m], vec![0.0f32; m]);
             for i in 0..n {
@@ -158,7 +209,11 @@ pub fn feast_backward(
                         continue;
                     }
                     let j = slots.index[slot] as usize;
-                    weights(ui, &uxs[j * m..(j + 1) * m], c, &mut q);
+                    let (pj, qi) = (
+                        &pqs[j * 2 * m..j * 2 * m + m],
+                        &pqs[i * 2 * m + m..(i + 1) * 2 * m],
+                    );
+                    weights_factored(pj, qi, (ui, &uxs[j * m..(j + 1) * m], c), &mut q);
                     let xj = &xs[j * ch..(j + 1) * ch];
                     let mut dot = 0.0;
                     for h in 0..m {
@@ -367,6 +422,82 @@ mod tests {
         let topo = Topology::new((w * h) as usize, &tris);
         assert!(topo.padded_mask.contains(&0.0), "some slots are padding");
         topo
+    }
+
+    /// The factored head weights of the forward and backward passes are the per-slot
+    /// softmax: on ordinary logits, and where the factors' products underflow (logits of
+    /// one vertex spread over 200) and the per-slot formula takes over. The reference
+    /// aggregates with [`super::weights`] slot by slot.
+    #[test]
+    fn factored_head_weights_are_the_per_slot_softmax() {
+        use super::{Slots, feast_backward, feast_forward, weights};
+        let topo = grid();
+        let (n, k, ch, m) = (topo.vertices, topo.slots, 3, 4);
+        let slots = Slots {
+            vertices: n,
+            k,
+            index: topo.padded.iter().map(|&j| j as u32).collect(),
+            used: topo.padded_mask.iter().map(|&u| u > 0.5).collect(),
+        };
+        let x: Vec<f32> = (0..n * ch)
+            .map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0)
+            .collect();
+        let c = [0.1f32, -0.2, 0.05, 0.3];
+        for spread in [1.0f32, 200.0] {
+            // Vertex i's logits alternate between +spread and -spread by head and parity,
+            // so that neighbours' maxima sit on other heads.
+            let ux: Vec<f32> = (0..n * m)
+                .map(|e| {
+                    let (i, h) = (e / m, e % m);
+                    let sign = if (i + h) % 2 == 0 { 1.0 } else { -1.0 };
+                    sign * spread * (0.5 + (e % 7) as f32 / 14.0)
+                })
+                .collect();
+            let z = feast_forward(&x, &ux, &c, &slots, [1, n, ch, m]);
+            let mut want = vec![0.0f32; n * m * ch];
+            let mut q = vec![0.0f32; m];
+            for i in 0..n {
+                for slot in i * k..(i + 1) * k {
+                    if !slots.used[slot] {
+                        continue;
+                    }
+                    let j = slots.index[slot] as usize;
+                    weights(&ux[i * m..(i + 1) * m], &ux[j * m..(j + 1) * m], &c, &mut q);
+                    for h in 0..m {
+                        for f in 0..ch {
+                            want[(i * m + h) * ch + f] += q[h] * x[j * ch + f];
+                        }
+                    }
+                }
+            }
+            assert!(z.iter().all(|v| v.is_finite()), "spread {spread}");
+            let err = rel(z, want);
+            assert!(err < 1e-5, "spread {spread}: forward differs by {err}");
+            // The backward pass's weights: finite gradients that agree with the forward
+            // pass's through a finite difference in x.
+            let gz: Vec<f32> = (0..n * m * ch)
+                .map(|e| ((e * 13 % 17) as f32 - 8.0) / 8.0)
+                .collect();
+            let (gx, gux, gc) = feast_backward(&x, &ux, &c, &gz, &slots, [1, n, ch, m]);
+            assert!(gx.iter().chain(&gux).chain(&gc).all(|v| v.is_finite()));
+            let loss = |x: &[f32]| -> f64 {
+                feast_forward(x, &ux, &c, &slots, [1, n, ch, m])
+                    .iter()
+                    .zip(&gz)
+                    .map(|(a, b)| (*a as f64) * (*b as f64))
+                    .sum()
+            };
+            let (e, eps) = (5 * ch + 1, 1e-2f32);
+            let (mut up, mut down) = (x.clone(), x.clone());
+            up[e] += eps;
+            down[e] -= eps;
+            let numeric = (loss(&up) - loss(&down)) / (2.0 * eps as f64);
+            assert!(
+                (numeric - gx[e] as f64).abs() < 1e-3 * (1.0 + numeric.abs()),
+                "spread {spread}: d/dx {numeric} against {}",
+                gx[e]
+            );
+        }
     }
 
     /// The fused operation against burn's tensor formulation, on the autodiff device: the
