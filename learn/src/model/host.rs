@@ -43,13 +43,14 @@ fn indices(x: &Tensor<1, Int>) -> Vec<usize> {
         .collect()
 }
 
-/// Running maximum that keeps a NaN once it has seen one (as `max_dim` does).
+/// Running maximum that keeps a NaN once it has seen one (as `max_dim` does); of equal
+/// values it keeps the first. Without branches, so that the loop runs on vector lanes
+/// (with a branch per element it compared four lanes, then stored them one by one).
 #[inline]
 fn max_into(acc: &mut [f32], row: &[f32]) {
     for (m, &y) in acc.iter_mut().zip(row) {
-        if y > *m || y.is_nan() && !m.is_nan() {
-            *m = y;
-        }
+        let take = (y > *m) | (y.is_nan() & !m.is_nan());
+        *m = if take { y } else { *m };
     }
 }
 
@@ -65,17 +66,37 @@ pub fn max_axis1(x: Tensor<3>) -> Tensor<3> {
     let device = x.device();
     let v = floats(x);
     let mut out = vec![0.0f32; a * c];
-    let reduce = |i: usize, o: &mut [f32]| {
-        let rows = &v[i * k * c..(i + 1) * k * c];
+    let reduce = |rows: &[f32], o: &mut [f32]| {
         o.copy_from_slice(&rows[..c]);
         for r in rows[c..].chunks_exact(c) {
             max_into(o, r);
         }
     };
-    out.par_chunks_mut(c)
-        .enumerate()
-        .with_min_len(ROWS_PER_TASK)
-        .for_each(|(i, o)| reduce(i, o));
+    if a >= rayon::current_num_threads() || k < 2 * ROWS_PER_TASK {
+        out.par_chunks_mut(c)
+            .zip(v.par_chunks(k * c))
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|(o, rows)| reduce(rows, o));
+    } else {
+        // Few long reductions (a batch's global feature over all its vertices): each
+        // reduced in parts on the threads, the parts' maxima then taken in order. The
+        // first of equal values and the first NaN win either way, so the bits are the
+        // sequential loop's.
+        for (o, rows) in out.chunks_exact_mut(c).zip(v.chunks_exact(k * c)) {
+            let parts: Vec<Vec<f32>> = rows
+                .par_chunks(ROWS_PER_TASK * c)
+                .map(|part| {
+                    let mut m = vec![0.0f32; c];
+                    reduce(part, &mut m);
+                    m
+                })
+                .collect();
+            o.copy_from_slice(&parts[0]);
+            for p in &parts[1..] {
+                max_into(o, p);
+            }
+        }
+    }
     Tensor::from_data(TensorData::new(out, [a, 1, c]), &device)
 }
 
@@ -146,6 +167,23 @@ mod tests {
         let got = floats(max_axis1(x));
         assert!(got[0].is_nan());
         assert_eq!(&got[1..], &[0.5, 0.5, 0.5]);
+        // So it does in one long reduction cut into parts on the threads: a NaN deep in
+        // column 1 (after the first part) and the largest value late in column 2.
+        let (k, c) = (3000, 3);
+        let mut v: Vec<f32> = (0..k * c)
+            .map(|e| ((e * 7919) % 1000) as f32 / 1000.0)
+            .collect();
+        v[2100 * c + 1] = f32::NAN;
+        v[2999 * c + 2] = 5.0;
+        let x = Tensor::<3>::from_data(TensorData::new(v.clone(), [1, k, c]), &device);
+        let got = floats(max_axis1(x));
+        let col0 = v
+            .iter()
+            .step_by(c)
+            .fold(f32::NEG_INFINITY, |m, &y| m.max(y));
+        assert_eq!(got[0], col0);
+        assert!(got[1].is_nan(), "{got:?}");
+        assert_eq!(got[2], 5.0);
     }
 
     #[test]
