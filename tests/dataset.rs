@@ -291,8 +291,11 @@ fn a_folder_another_gen_is_writing_is_refused() {
     {
         let _parts = lock(".gen.lock", true);
         let _one = lock(".gen.part-1-of-2.lock", false);
+        let _split = lock(".gen.parts-2.lock", true);
         refused(&[], "this dataset or one of its parts");
         refused(&["--shard", "1/2"], "part 1/2");
+        // A part of another split would write some of the same shards.
+        refused(&["--shard", "0/3"], "another split");
         // Nothing was written by the refused runs.
         assert!(!d.join("config.json").exists());
         gen_into(&d, &["--shard", "0/2"]);
@@ -309,6 +312,22 @@ fn a_folder_another_gen_is_writing_is_refused() {
             .collect()
     };
     assert_eq!(shards(&d), shards(reference_dir));
+    // `drape data merge` does not write into a folder a drape gen is writing.
+    gen_into(&d, &["--shard", "1/2"]);
+    let m = t.path().join("m");
+    std::fs::create_dir_all(&m).unwrap();
+    let held = std::fs::File::create(m.join(".gen.lock")).unwrap();
+    held.lock().unwrap();
+    let merge = || run(drape().args(["data", "merge"]).arg(&d).arg("-o").arg(&m));
+    let (ok, text) = merge();
+    assert!(
+        !ok && text.contains("another drape gen is writing"),
+        "{text}"
+    );
+    drop(held);
+    let (ok, text) = merge();
+    assert!(ok, "{text}");
+    assert_eq!(shards(&m), shards(reference_dir));
 }
 
 #[test]
@@ -651,6 +670,10 @@ fn poses_come_from_a_folder_of_bvh_files() {
         "{text}"
     );
     assert!(!motions.join("config.json").exists());
+    assert!(
+        !motions.join(".gen.lock").exists(),
+        "a lock file left in a user's folder"
+    );
     // What a start stopped before its config.json leaves does not count: empty partial/
     // and records/ folders and a temporary file.
     let leftover = t.path().join("leftover");

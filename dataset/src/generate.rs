@@ -341,12 +341,24 @@ fn assemble(dir: &Path, shard: &ShardPlan, dims: Dims) -> Result<ShardRecord, Da
 /// The lock file of a whole run; a part's run holds it shared.
 const LOCK_FILE: &str = ".gen.lock";
 
-/// Takes the folder's locks for this run, so that two runs never write the same files: a
-/// whole run holds [`LOCK_FILE`] alone; a part's run holds it shared with the other parts
-/// (a cluster job's parts may write into one folder at once) and its own part's lock file
-/// alone. Operating-system locks on open files: they end with the process, however it
-/// ends, so no stale lock is ever left to remove. Creates `dir` if it is missing.
-fn lock_folder(dir: &Path, opts: GenOptions) -> Result<Vec<std::fs::File>, DatasetError> {
+/// Takes the folder's locks for this run, so that two runs never write the same files:
+///
+/// - a whole run holds [`LOCK_FILE`] alone;
+/// - a part's run (`--shard I/N`) holds it shared with the other parts (a cluster job's
+///   parts may write into one folder at once), its own `.gen.part-I-of-N.lock` alone and
+///   `.gen.parts-N.lock` shared; it then refuses the folder if a part of another split
+///   (another N, whose shards overlap this one's) holds its `.gen.parts-M.lock`. Of two
+///   such runs starting at once, at least one is refused.
+///
+/// Operating-system locks on open files: they end with the process, however it ends, so
+/// no stale lock is ever left to remove. On a file system that cannot lock (some network
+/// mounts) the run goes on without the guard and `log` says so. Creates `dir` if it is
+/// missing.
+pub fn lock_folder(
+    dir: &Path,
+    opts: GenOptions,
+    log: &mut dyn FnMut(&str),
+) -> Result<Vec<std::fs::File>, DatasetError> {
     let io = |path: PathBuf| move |source| DatasetError::Io { path, source };
     std::fs::create_dir_all(dir).map_err(io(dir.to_path_buf()))?;
     let open = |name: &str| {
@@ -365,33 +377,73 @@ fn lock_folder(dir: &Path, opts: GenOptions) -> Result<Vec<std::fs::File>, Datas
             dir.display()
         ))
     };
-    let take = |file: &std::fs::File, shared: bool, what: &str| {
+    let mut unguarded = None;
+    // Ok(true): locked; Ok(false): another process holds it.
+    let mut take = |name: &str, shared: bool| -> Result<(std::fs::File, bool), DatasetError> {
+        let file = open(name)?;
         let taken = if shared {
             file.try_lock_shared()
         } else {
             file.try_lock()
         };
         match taken {
-            Ok(()) => Ok(()),
-            Err(std::fs::TryLockError::WouldBlock) => Err(busy(what)),
-            // A file system without locks (some network mounts): run unguarded, as before
-            // locks existed.
-            Err(std::fs::TryLockError::Error(e)) if e.kind() == std::io::ErrorKind::Unsupported => {
-                Ok(())
+            Ok(()) => Ok((file, true)),
+            Err(std::fs::TryLockError::WouldBlock) => Ok((file, false)),
+            Err(std::fs::TryLockError::Error(e)) => {
+                unguarded.get_or_insert(format!("{}: {e}", dir.join(name).display()));
+                Ok((file, true))
             }
-            Err(std::fs::TryLockError::Error(e)) => Err(io(dir.join(LOCK_FILE))(e)),
         }
     };
-    let whole = open(LOCK_FILE)?;
-    if opts.parts == 1 {
-        take(&whole, false, "this dataset or one of its parts")?;
-        return Ok(vec![whole]);
+    let mut held = Vec::new();
+    let (whole, ok) = take(LOCK_FILE, opts.parts > 1)?;
+    if !ok {
+        return Err(busy(if opts.parts == 1 {
+            "this dataset or one of its parts"
+        } else {
+            "the whole dataset"
+        }));
     }
-    take(&whole, true, "the whole dataset")?;
-    let name = format!(".gen.part-{}-of-{}.lock", opts.part, opts.parts);
-    let mine = open(&name)?;
-    take(&mine, false, &format!("part {}/{}", opts.part, opts.parts))?;
-    Ok(vec![whole, mine])
+    held.push(whole);
+    if opts.parts > 1 {
+        let (mine, ok) = take(
+            &format!(".gen.part-{}-of-{}.lock", opts.part, opts.parts),
+            false,
+        )?;
+        if !ok {
+            return Err(busy(&format!("part {}/{}", opts.part, opts.parts)));
+        }
+        held.push(mine);
+        let split = format!(".gen.parts-{}.lock", opts.parts);
+        let (ours, _) = take(&split, true)?;
+        held.push(ours);
+        let others: Vec<String> = std::fs::read_dir(dir)
+            .map_err(io(dir.to_path_buf()))?
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(".gen.parts-") && n.ends_with(".lock") && *n != split)
+            .collect();
+        for name in others {
+            // Free unless a part of that split is running; the probe's lock ends with
+            // its file, at the end of this iteration.
+            let (_probe, ok) = take(&name, false)?;
+            if !ok {
+                let m = name
+                    .trim_start_matches(".gen.parts-")
+                    .trim_end_matches(".lock");
+                return Err(busy(&format!(
+                    "parts of another split (--shard I/{m}, whose shards overlap part {}/{})",
+                    opts.part, opts.parts
+                )));
+            }
+        }
+    }
+    if let Some(why) = unguarded {
+        log(&format!(
+            "warning: cannot lock the folder ({why}); running without the guard against a second drape gen writing into it"
+        ));
+    }
+    Ok(held)
 }
 
 /// Whether `dir` holds anything but what a start of `drape gen` stopped before its
@@ -436,11 +488,17 @@ pub fn generate(
             opts.parts.saturating_sub(1)
         )));
     }
-    let _locks = lock_folder(dir, opts)?;
     // A folder holds one dataset: refuse another config (before any work), another
-    // garment material or drapes of another build.
+    // garment material or drapes of another build. A folder of other files is refused
+    // before its lock file is written into it, and again once locked.
     let stamp_path = dir.join("config.json");
-    if !stamp_path.exists() && holds_other_files(dir) {
+    let foreign = || !stamp_path.exists() && holds_other_files(dir);
+    let _locks = if foreign() {
+        Vec::new()
+    } else {
+        lock_folder(dir, opts, log)?
+    };
+    if foreign() {
         return Err(DatasetError::Invalid(
             if dir.join("manifest.json").exists() {
                 format!(

@@ -296,10 +296,11 @@ pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifes
             )));
         }
     }
-    std::fs::create_dir_all(out).map_err(|e| DatasetError::Io {
-        path: out.to_path_buf(),
-        source: e,
-    })?;
+    // No drape gen may write into the folder while the merge writes its manifest.
+    let _lock =
+        crate::generate::lock_folder(out, crate::generate::GenOptions::default(), &mut |m| {
+            eprintln!("{m}")
+        })?;
     let copy = |from: &Path, name: &str, sha: &str| -> Result<(), DatasetError> {
         let src = from.join(name);
         let bytes = std::fs::read(&src).map_err(|e| DatasetError::Io {

@@ -83,8 +83,9 @@ fn weights(ui: &[f32], uj: &[f32], c: &[f32], q: &mut [f32]) {
 /// `P_h = exp(a_h - max a)` and `Q_h = exp(c_h - a_h - max(c - a))`. The softmax of slot
 /// (i, j) over the heads is then `P_j,h Q_i,h / sum_h' P_j,h' Q_i,h'`: the same numbers as
 /// exponentiating `u_h . x_j - u_h . x_i + c_h` per slot, with an exponential per vertex and
-/// head instead of per slot and head (a tenth of them on a triangle mesh; docs/bench.md,
-/// "FeaStNet's head weights factored").
+/// head instead of per used slot and head (about 2/7 of them on a triangle mesh, whose
+/// slots are the vertex and its one-ring; docs/bench.md, "FeaStNet's head weights
+/// factored").
 fn head_factors(ux: &[f32], c: &[f32], m: usize) -> Vec<f32> {
     let mut pq = vec![0.0f32; ux.len() * 2];
     pq.par_chunks_mut(2 * m)
@@ -106,8 +107,8 @@ fn head_factors(ux: &[f32], c: &[f32], m: usize) -> Vec<f32> {
 }
 
 /// q over the heads for one slot from the factors of [`head_factors`] (`pj` of the
-/// neighbour, `qi` of the vertex), into `q`. Where every product underflows (logits
-/// spread over more than about 87 between the two ends' maxima, which trained networks do
+/// neighbour, `qi` of the vertex), into `q`. Where the products' sum falls below 1e-30
+/// (logits spread over about 69 between the two ends' maxima, which trained networks do
 /// not reach) it falls back to [`weights`].
 #[inline]
 fn weights_factored(pj: &[f32], qi: &[f32], (ui, uj, c): (&[f32], &[f32], &[f32]), q: &mut [f32]) {
