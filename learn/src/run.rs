@@ -73,7 +73,7 @@ pub fn check_faces(run: &Path, info: &RunInfo, triangles: &[[u32; 3]]) -> Result
     let now = faces_sha256(triangles);
     match &info.faces_sha256 {
         Some(trained) if *trained != now => Err(LearnError::Mismatch(format!(
-            "{} was trained on a {} mesh with other triangles (faces sha256 {}, this template's {}): \
+            "{} was trained on a {} mesh with other triangles (faces sha256 {}..., this template's {}...): \
              the template was replaced or its definition changed since; train on data of this \
              template, or restore the one the run was trained on",
             run.display(),
@@ -205,7 +205,7 @@ pub fn check_init(
     if let (Some(theirs), Some(ours)) = (&old.faces_sha256, &info.faces_sha256) {
         if theirs != ours {
             return Err(LearnError::Mismatch(format!(
-                "{} was trained on a {} mesh with other triangles than this data's (faces sha256 {} against {})",
+                "{} was trained on a {} mesh with other triangles than this data's (faces sha256 {}... against {}...)",
                 init.display(),
                 old.garment,
                 dataset::manifest::short_hex(theirs),
