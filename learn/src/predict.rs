@@ -61,7 +61,11 @@ impl Predictor {
                 info.vertices
             )));
         }
-        crate::run::check_faces(run, &info, &statics.garment_triangles)?;
+        crate::run::check_faces(
+            run,
+            &info,
+            &crate::run::faces_sha256(&statics.garment_triangles),
+        )?;
         let best = run.join("best.bpk");
         if !best.exists() {
             return Err(LearnError::Mismatch(format!(

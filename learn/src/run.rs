@@ -66,20 +66,19 @@ pub fn faces_sha256(triangles: &[[u32; 3]]) -> String {
     dataset::generate::sha256(&bytes)
 }
 
-/// Refuses a garment whose triangles are not those `run` was trained on (when its
-/// `run.json` records them): an imported template replaced by another mesh with as many
-/// vertices, or a built-in one whose definition changed since.
-pub fn check_faces(run: &Path, info: &RunInfo, triangles: &[[u32; 3]]) -> Result<(), LearnError> {
-    let now = faces_sha256(triangles);
+/// Refuses a garment whose triangles (their [`faces_sha256`], `faces`) are not those `run`
+/// was trained on, when its `run.json` records them: an imported template replaced by
+/// another mesh with as many vertices, or a built-in one whose definition changed since.
+pub fn check_faces(run: &Path, info: &RunInfo, faces: &str) -> Result<(), LearnError> {
     match &info.faces_sha256 {
-        Some(trained) if *trained != now => Err(LearnError::Mismatch(format!(
-            "{} was trained on a {} mesh with other triangles (faces sha256 {}..., this template's {}...): \
-             the template was replaced or its definition changed since; train on data of this \
-             template, or restore the one the run was trained on",
+        Some(trained) if trained != faces => Err(LearnError::Mismatch(format!(
+            "{} was trained on a {} mesh with other triangles (faces sha256 {}..., this garment's {}...): \
+             the template was replaced or its definition changed since; use data or a template \
+             with the run's mesh",
             run.display(),
             info.garment,
             dataset::manifest::short_hex(trained),
-            dataset::manifest::short_hex(&now),
+            dataset::manifest::short_hex(faces),
         ))),
         _ => Ok(()),
     }
@@ -202,16 +201,8 @@ pub fn check_init(
             info.vertices
         )));
     }
-    if let (Some(theirs), Some(ours)) = (&old.faces_sha256, &info.faces_sha256) {
-        if theirs != ours {
-            return Err(LearnError::Mismatch(format!(
-                "{} was trained on a {} mesh with other triangles than this data's (faces sha256 {}... against {}...)",
-                init.display(),
-                old.garment,
-                dataset::manifest::short_hex(theirs),
-                dataset::manifest::short_hex(ours),
-            )));
-        }
+    if let Some(faces) = &info.faces_sha256 {
+        check_faces(init, &old, faces)?;
     }
     Ok(())
 }

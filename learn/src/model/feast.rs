@@ -204,16 +204,14 @@ pub fn feast_backward(
             let (mut q, mut g) = (vec![0.0f32; m], vec![0.0f32; m]);
             for i in 0..n {
                 let ui = &uxs[i * m..(i + 1) * m];
+                let qi = &pqs[i * 2 * m + m..(i + 1) * 2 * m];
                 let gzi = &gzs[i * m * ch..(i + 1) * m * ch];
                 for slot in i * k..(i + 1) * k {
                     if !slots.used[slot] {
                         continue;
                     }
                     let j = slots.index[slot] as usize;
-                    let (pj, qi) = (
-                        &pqs[j * 2 * m..j * 2 * m + m],
-                        &pqs[i * 2 * m + m..(i + 1) * 2 * m],
-                    );
+                    let pj = &pqs[j * 2 * m..j * 2 * m + m];
                     weights_factored(pj, qi, (ui, &uxs[j * m..(j + 1) * m], c), &mut q);
                     let xj = &xs[j * ch..(j + 1) * ch];
                     let mut dot = 0.0;
