@@ -28,6 +28,7 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Dispatch, TensorMetadata, backend_extension};
 use burn::tensor::{Tensor, TensorData};
+use pulp::{Arch, Simd, WithSimd};
 use rayon::prelude::*;
 
 /// Vertices per rayon task in the forward pass (each is a few thousand multiply-adds).
@@ -126,6 +127,149 @@ fn weights_factored(pj: &[f32], qi: &[f32], (ui, uj, c): (&[f32], &[f32], &[f32]
     }
 }
 
+/// `y += a x`, in the widest SIMD the CPU offers (`simd`; the tail shorter than a vector
+/// with a masked load and store).
+#[inline(always)]
+fn axpy<S: Simd>(simd: S, y: &mut [f32], a: f32, x: &[f32]) {
+    debug_assert_eq!(y.len(), x.len());
+    let (yh, yt) = S::as_mut_simd_f32s(y);
+    let (xh, xt) = S::as_simd_f32s(x);
+    let av = simd.splat_f32s(a);
+    for (o, &v) in yh.iter_mut().zip(xh) {
+        *o = simd.mul_add_e_f32s(av, v, *o);
+    }
+    if !yt.is_empty() {
+        let (o, v) = (simd.partial_load_f32s(yt), simd.partial_load_f32s(xt));
+        simd.partial_store_f32s(yt, simd.mul_add_e_f32s(av, v, o));
+    }
+}
+
+/// `a . b`, in the widest SIMD the CPU offers (as [`axpy`]).
+#[inline(always)]
+fn dot<S: Simd>(simd: S, a: &[f32], b: &[f32]) -> f32 {
+    debug_assert_eq!(a.len(), b.len());
+    let (ah, at) = S::as_simd_f32s(a);
+    let (bh, bt) = S::as_simd_f32s(b);
+    let mut acc = simd.splat_f32s(0.0);
+    for (&u, &v) in ah.iter().zip(bh) {
+        acc = simd.mul_add_e_f32s(u, v, acc);
+    }
+    if !at.is_empty() {
+        let (u, v) = (simd.partial_load_f32s(at), simd.partial_load_f32s(bt));
+        acc = simd.mul_add_e_f32s(u, v, acc);
+    }
+    simd.reduce_sum_f32s(acc)
+}
+
+/// The operands of both passes, on the host.
+#[derive(Clone, Copy)]
+struct Operands<'a> {
+    x: &'a [f32],
+    ux: &'a [f32],
+    c: &'a [f32],
+    /// [`head_factors`] of `ux` and `c`.
+    pq: &'a [f32],
+    slots: &'a Slots,
+    /// `[B, N, C, M]`.
+    sizes: [usize; 4],
+}
+
+/// Heads whose sums one sweep over a vertex's neighbours accumulates, each in a SIMD
+/// register ([`ForwardRows`]).
+const HEADS_PER_SWEEP: usize = 4;
+
+/// One rayon task of the forward pass: the output rows from `first` on, `z` holding
+/// `z.len() / (M C)` of them. Run by [`Arch::dispatch`], so the loops compile once per
+/// SIMD level (AVX-512, AVX2, none) and the CPU's widest runs.
+///
+/// Per vertex, the head weights of its used slots first; then for each vector-wide column
+/// block of the features and each group of [`HEADS_PER_SWEEP`] heads, one sweep over the
+/// neighbours keeps the group's sums in registers and stores them once: a neighbour's block
+/// is loaded once per group instead of each head's output read and written per neighbour
+/// (docs/bench.md, "FeaStNet's aggregation in SIMD registers").
+struct ForwardRows<'a> {
+    first: usize,
+    z: &'a mut [f32],
+    ops: Operands<'a>,
+}
+
+impl WithSimd for ForwardRows<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let Operands {
+            x,
+            ux,
+            c,
+            pq,
+            slots,
+            sizes: [_, n, ch, m],
+        } = self.ops;
+        let k = slots.k;
+        // Heads rounded up to whole sweeps; the padding heads' weights stay zero.
+        let mp = m.div_ceil(HEADS_PER_SWEEP) * HEADS_PER_SWEEP;
+        let mut neighbours: Vec<&[f32]> = Vec::with_capacity(k);
+        let mut qs = vec![0.0f32; k * mp];
+        let zero = simd.splat_f32s(0.0);
+        for (r, zi) in self.z.chunks_exact_mut(m * ch).enumerate() {
+            let row = self.first + r;
+            let (s, i) = (row / n, row % n);
+            let base = s * n;
+            let ui = &ux[row * m..(row + 1) * m];
+            let qi = &pq[row * 2 * m + m..(row + 1) * 2 * m];
+            neighbours.clear();
+            for slot in i * k..(i + 1) * k {
+                if !slots.used[slot] {
+                    continue;
+                }
+                let j = base + slots.index[slot] as usize;
+                let uj = &ux[j * m..(j + 1) * m];
+                let u = neighbours.len();
+                let q = &mut qs[u * mp..u * mp + m];
+                weights_factored(&pq[j * 2 * m..j * 2 * m + m], qi, (ui, uj, c), q);
+                neighbours.push(&x[j * ch..(j + 1) * ch]);
+            }
+            let blocks = ch / S::F32_LANES;
+            let tail = ch % S::F32_LANES;
+            for g in 0..mp / HEADS_PER_SWEEP {
+                let h0 = g * HEADS_PER_SWEEP;
+                let heads = HEADS_PER_SWEEP.min(m - h0);
+                // Whole vector blocks of the features.
+                for v in 0..blocks {
+                    let mut acc = [zero; HEADS_PER_SWEEP];
+                    for (u, xj) in neighbours.iter().enumerate() {
+                        let xv = S::as_simd_f32s(xj).0[v];
+                        let q = &qs[u * mp + h0..u * mp + h0 + HEADS_PER_SWEEP];
+                        for h in 0..HEADS_PER_SWEEP {
+                            acc[h] = simd.mul_add_e_f32s(simd.splat_f32s(q[h]), xv, acc[h]);
+                        }
+                    }
+                    for h in 0..heads {
+                        let out = &mut zi[(h0 + h) * ch..(h0 + h + 1) * ch];
+                        S::as_mut_simd_f32s(out).0[v] = acc[h];
+                    }
+                }
+                // The features past the last whole block, with masked loads and stores.
+                if tail > 0 {
+                    let mut acc = [zero; HEADS_PER_SWEEP];
+                    for (u, xj) in neighbours.iter().enumerate() {
+                        let xv = simd.partial_load_f32s(S::as_simd_f32s(xj).1);
+                        let q = &qs[u * mp + h0..u * mp + h0 + HEADS_PER_SWEEP];
+                        for h in 0..HEADS_PER_SWEEP {
+                            acc[h] = simd.mul_add_e_f32s(simd.splat_f32s(q[h]), xv, acc[h]);
+                        }
+                    }
+                    for h in 0..heads {
+                        let out = &mut zi[(h0 + h) * ch..(h0 + h + 1) * ch];
+                        simd.partial_store_f32s(S::as_mut_simd_f32s(out).1, acc[h]);
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// The forward pass on the host.
 ///
 /// # Shapes
@@ -135,37 +279,36 @@ pub fn feast_forward(
     ux: &[f32],
     c: &[f32],
     slots: &Slots,
-    [b, n, ch, m]: [usize; 4],
+    sizes: [usize; 4],
 ) -> Vec<f32> {
-    let k = slots.k;
+    forward_with(x, ux, c, slots, sizes, |rows| Arch::new().dispatch(rows))
+}
+
+/// [`feast_forward`], each task run by `run` (tests pick the SIMD level).
+fn forward_with(
+    x: &[f32],
+    ux: &[f32],
+    c: &[f32],
+    slots: &Slots,
+    [b, n, ch, m]: [usize; 4],
+    run: impl Fn(ForwardRows) + Sync,
+) -> Vec<f32> {
     let pq = head_factors(ux, c, m);
+    let ops = Operands {
+        x,
+        ux,
+        c,
+        pq: &pq,
+        slots,
+        sizes: [b, n, ch, m],
+    };
     let mut z = vec![0.0f32; b * n * m * ch];
-    z.par_chunks_mut(m * ch)
+    z.par_chunks_mut(VERTICES_PER_TASK * m * ch)
         .enumerate()
-        .with_min_len(VERTICES_PER_TASK)
-        .for_each_init(
-            || vec![0.0f32; m],
-            |q, (row, zi)| {
-                let (s, i) = (row / n, row % n);
-                let base = s * n;
-                let ui = &ux[row * m..(row + 1) * m];
-                let qi = &pq[row * 2 * m + m..(row + 1) * 2 * m];
-                for slot in i * k..(i + 1) * k {
-                    if !slots.used[slot] {
-                        continue;
-                    }
-                    let j = base + slots.index[slot] as usize;
-                    let uj = &ux[j * m..(j + 1) * m];
-                    weights_factored(&pq[j * 2 * m..j * 2 * m + m], qi, (ui, uj, c), q);
-                    let xj = &x[j * ch..(j + 1) * ch];
-                    for (zh, &w) in zi.chunks_exact_mut(ch).zip(q.iter()) {
-                        for (o, &v) in zh.iter_mut().zip(xj) {
-                            *o += w * v;
-                        }
-                    }
-                }
-            },
-        );
+        .for_each(|(t, z)| {
+            let first = t * VERTICES_PER_TASK;
+            run(ForwardRows { first, z, ops });
+        });
     z
 }
 
@@ -185,54 +328,46 @@ pub fn feast_backward(
     c: &[f32],
     gz: &[f32],
     slots: &Slots,
-    [b, n, ch, m]: [usize; 4],
+    sizes: [usize; 4],
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
-    let k = slots.k;
+    backward_with(x, ux, c, gz, slots, sizes, |item| {
+        Arch::new().dispatch(item)
+    })
+}
+
+/// [`feast_backward`], each batch item run by `run` (tests pick the SIMD level).
+fn backward_with(
+    x: &[f32],
+    ux: &[f32],
+    c: &[f32],
+    gz: &[f32],
+    slots: &Slots,
+    [b, n, ch, m]: [usize; 4],
+    run: impl Fn(BackwardItem) -> Vec<f32> + Sync,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let pq = head_factors(ux, c, m);
+    let ops = Operands {
+        x,
+        ux,
+        c,
+        pq: &pq,
+        slots,
+        sizes: [b, n, ch, m],
+    };
     let mut gx = vec![0.0f32; b * n * ch];
     let mut gux = vec![0.0f32; b * n * m];
     let gc_parts: Vec<Vec<f32>> = gx
         .par_chunks_mut(n * ch)
         .zip(gux.par_chunks_mut(n * m))
         .enumerate()
-        .map(|(s, (gxs, guxs))| {
-            let xs = &x[s * n * ch..(s + 1) * n * ch];
-            let uxs = &ux[s * n * m..(s + 1) * n * m];
-            let gzs = &gz[s * n * m * ch..(s + 1) * n * m * ch];
-            let pqs = &pq[s * n * 2 * m..(s + 1) * n * 2 * m];
-            let mut gc = vec![0.0f32; m];
-            let (mut q, mut g) = (vec![0.0f32; m], vec![0.0f32; m]);
-            for i in 0..n {
-                let ui = &uxs[i * m..(i + 1) * m];
-                let qi = &pqs[i * 2 * m + m..(i + 1) * 2 * m];
-                let gzi = &gzs[i * m * ch..(i + 1) * m * ch];
-                for slot in i * k..(i + 1) * k {
-                    if !slots.used[slot] {
-                        continue;
-                    }
-                    let j = slots.index[slot] as usize;
-                    let pj = &pqs[j * 2 * m..j * 2 * m + m];
-                    weights_factored(pj, qi, (ui, &uxs[j * m..(j + 1) * m], c), &mut q);
-                    let xj = &xs[j * ch..(j + 1) * ch];
-                    let mut dot = 0.0;
-                    for h in 0..m {
-                        let gzh = &gzi[h * ch..(h + 1) * ch];
-                        g[h] = gzh.iter().zip(xj).map(|(a, b)| a * b).sum::<f32>();
-                        dot += q[h] * g[h];
-                        let gxj = &mut gxs[j * ch..(j + 1) * ch];
-                        for (o, &v) in gxj.iter_mut().zip(gzh) {
-                            *o += q[h] * v;
-                        }
-                    }
-                    for h in 0..m {
-                        let dl = q[h] * (g[h] - dot);
-                        guxs[j * m + h] += dl;
-                        guxs[i * m + h] -= dl;
-                        gc[h] += dl;
-                    }
-                }
-            }
-            gc
+        .map(|(item, (gx, gux))| {
+            run(BackwardItem {
+                item,
+                gz,
+                gx,
+                gux,
+                ops,
+            })
         })
         .collect();
     let mut gc = vec![0.0f32; m];
@@ -242,6 +377,69 @@ pub fn feast_backward(
         }
     }
     (gx, gux, gc)
+}
+
+/// One batch item's backward pass (see [`feast_backward`]), its vertices in turn; returns
+/// the item's share of c's gradient. Run by [`Arch::dispatch`] as [`ForwardRows`].
+struct BackwardItem<'a> {
+    item: usize,
+    gz: &'a [f32],
+    gx: &'a mut [f32],
+    gux: &'a mut [f32],
+    ops: Operands<'a>,
+}
+
+impl WithSimd for BackwardItem<'_> {
+    type Output = Vec<f32>;
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) -> Vec<f32> {
+        let Operands {
+            x,
+            ux,
+            c,
+            pq,
+            slots,
+            sizes: [_, n, ch, m],
+        } = self.ops;
+        let (s, k) = (self.item, slots.k);
+        let (gxs, guxs) = (self.gx, self.gux);
+        let xs = &x[s * n * ch..(s + 1) * n * ch];
+        let uxs = &ux[s * n * m..(s + 1) * n * m];
+        let gzs = &self.gz[s * n * m * ch..(s + 1) * n * m * ch];
+        let pqs = &pq[s * n * 2 * m..(s + 1) * n * 2 * m];
+        let mut gc = vec![0.0f32; m];
+        let (mut q, mut g) = (vec![0.0f32; m], vec![0.0f32; m]);
+        for i in 0..n {
+            let ui = &uxs[i * m..(i + 1) * m];
+            let qi = &pqs[i * 2 * m + m..(i + 1) * 2 * m];
+            let gzi = &gzs[i * m * ch..(i + 1) * m * ch];
+            for slot in i * k..(i + 1) * k {
+                if !slots.used[slot] {
+                    continue;
+                }
+                let j = slots.index[slot] as usize;
+                let pj = &pqs[j * 2 * m..j * 2 * m + m];
+                weights_factored(pj, qi, (ui, &uxs[j * m..(j + 1) * m], c), &mut q);
+                let xj = &xs[j * ch..(j + 1) * ch];
+                let gxj = &mut gxs[j * ch..(j + 1) * ch];
+                let mut total = 0.0;
+                for h in 0..m {
+                    let gzh = &gzi[h * ch..(h + 1) * ch];
+                    g[h] = dot(simd, gzh, xj);
+                    total += q[h] * g[h];
+                    axpy(simd, gxj, q[h], gzh);
+                }
+                for h in 0..m {
+                    let dl = q[h] * (g[h] - total);
+                    guxs[j * m + h] += dl;
+                    guxs[i * m + h] -= dl;
+                    gc[h] += dl;
+                }
+            }
+        }
+        gc
+    }
 }
 
 /// Runs a backend future that is ready at once (the CPU backends' data reads).
@@ -556,6 +754,114 @@ mod tests {
             let err = rel(grad(a, name), grad(b, name));
             assert!(err < 1e-4, "{name}'s gradients differ by {err}");
         }
+    }
+
+    /// The forward and backward passes at each SIMD level this CPU has (none, AVX2,
+    /// AVX-512) against the per-slot formula written out, for feature widths with and
+    /// without a part-vector tail, narrower than a vector, and head counts that do and do
+    /// not fill whole sweeps of [`super::HEADS_PER_SWEEP`].
+    #[test]
+    fn every_simd_level_gives_the_per_slot_sums_and_their_gradients() {
+        use super::{Slots, backward_with, forward_with, weights};
+        use pulp::{Scalar, Simd};
+        use rand::{Rng, SeedableRng};
+
+        let topo = grid();
+        let g = Graph::new(&topo, &Device::default());
+        let slots: &Slots = &g.host_slots;
+        let (n, k) = (slots.vertices, slots.k);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut levels = 0;
+        for (ch, m) in [(19, 4), (51, 4), (32, 8), (5, 3), (131, 6), (16, 1)] {
+            let b = 2;
+            let mut draw = |len: usize| -> Vec<f32> {
+                (0..len).map(|_| rng.random_range(-1.5f32..1.5)).collect()
+            };
+            let (x, ux, c, gz) = (
+                draw(b * n * ch),
+                draw(b * n * m),
+                draw(m),
+                draw(b * n * m * ch),
+            );
+            // The formula, slot by slot: z and, for the loss sum(gz * z), its gradients.
+            let mut z = vec![0.0f64; b * n * m * ch];
+            let mut gx = vec![0.0f64; b * n * ch];
+            let mut gux = vec![0.0f64; b * n * m];
+            let mut q = vec![0.0f32; m];
+            for s in 0..b {
+                for i in 0..n {
+                    let row = s * n + i;
+                    for slot in i * k..(i + 1) * k {
+                        if !slots.used[slot] {
+                            continue;
+                        }
+                        let j = s * n + slots.index[slot] as usize;
+                        weights(&ux[row * m..][..m], &ux[j * m..][..m], &c, &mut q);
+                        let mut g = vec![0.0f64; m];
+                        for h in 0..m {
+                            for e in 0..ch {
+                                let (xv, gv) =
+                                    (x[j * ch + e] as f64, gz[(row * m + h) * ch + e] as f64);
+                                z[(row * m + h) * ch + e] += q[h] as f64 * xv;
+                                gx[j * ch + e] += q[h] as f64 * gv;
+                                g[h] += gv * xv;
+                            }
+                        }
+                        let total: f64 = (0..m).map(|h| q[h] as f64 * g[h]).sum();
+                        for h in 0..m {
+                            let dl = q[h] as f64 * (g[h] - total);
+                            gux[j * m + h] += dl;
+                            gux[row * m + h] -= dl;
+                        }
+                    }
+                }
+            }
+            let close = |what: &str, got: &[f32], want: &[f64]| {
+                let scale = want.iter().fold(1e-12f64, |s, v| s.max(v.abs()));
+                let err = got
+                    .iter()
+                    .zip(want)
+                    .map(|(a, b)| (*a as f64 - b).abs())
+                    .fold(0.0, f64::max);
+                assert!(
+                    err / scale < 1e-5,
+                    "C {ch}, M {m}, {what}: off by {err} of {scale}"
+                );
+            };
+            let sizes = [b, n, ch, m];
+            let mut check =
+                |forward: &dyn Fn() -> Vec<f32>,
+                 backward: &dyn Fn() -> (Vec<f32>, Vec<f32>, Vec<f32>)| {
+                    close("z", &forward(), &z);
+                    let (bx, bux, _) = backward();
+                    close("d x", &bx, &gx);
+                    close("d ux", &bux, &gux);
+                    levels += 1;
+                };
+            let s = Scalar::new();
+            check(
+                &|| forward_with(&x, &ux, &c, slots, sizes, |r| Simd::vectorize(s, r)),
+                &|| backward_with(&x, &ux, &c, &gz, slots, sizes, |r| Simd::vectorize(s, r)),
+            );
+            #[cfg(target_arch = "x86_64")]
+            if let Some(s) = pulp::x86::V3::try_new() {
+                check(
+                    &|| forward_with(&x, &ux, &c, slots, sizes, |r| Simd::vectorize(s, r)),
+                    &|| backward_with(&x, &ux, &c, &gz, slots, sizes, |r| Simd::vectorize(s, r)),
+                );
+            }
+            #[cfg(target_arch = "x86_64")]
+            if let Some(s) = pulp::x86::V4::try_new() {
+                check(
+                    &|| forward_with(&x, &ux, &c, slots, sizes, |r| Simd::vectorize(s, r)),
+                    &|| backward_with(&x, &ux, &c, &gz, slots, sizes, |r| Simd::vectorize(s, r)),
+                );
+            }
+        }
+        assert!(
+            levels >= 6,
+            "at least the scalar level for every size: {levels}"
+        );
     }
 
     /// Off the autodiff device the same operation gives the autodiff device's values.
