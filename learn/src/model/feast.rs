@@ -87,7 +87,7 @@ fn weights(ui: &[f32], uj: &[f32], c: &[f32], q: &mut [f32]) {
 /// head instead of per used slot and head (about 2/7 of them on a triangle mesh, whose
 /// slots are the vertex and its one-ring; docs/bench.md, "FeaStNet's head weights
 /// factored").
-fn head_factors(ux: &[f32], c: &[f32], m: usize) -> Vec<f32> {
+pub(super) fn head_factors(ux: &[f32], c: &[f32], m: usize) -> Vec<f32> {
     let mut pq = vec![0.0f32; ux.len() * 2];
     pq.par_chunks_mut(2 * m)
         .zip(ux.par_chunks(m))
@@ -111,8 +111,13 @@ fn head_factors(ux: &[f32], c: &[f32], m: usize) -> Vec<f32> {
 /// neighbour, `qi` of the vertex), into `q`. Where the products' sum falls below 1e-30
 /// (logits spread over about 69 between the two ends' maxima, which trained networks do
 /// not reach) it falls back to [`weights`].
-#[inline]
-fn weights_factored(pj: &[f32], qi: &[f32], (ui, uj, c): (&[f32], &[f32], &[f32]), q: &mut [f32]) {
+#[inline(always)]
+pub(super) fn weights_factored(
+    pj: &[f32],
+    qi: &[f32],
+    (ui, uj, c): (&[f32], &[f32], &[f32]),
+    q: &mut [f32],
+) {
     let mut sum = 0.0;
     for h in 0..q.len() {
         q[h] = pj[h] * qi[h];
@@ -146,7 +151,7 @@ fn axpy<S: Simd>(simd: S, y: &mut [f32], a: f32, x: &[f32]) {
 
 /// `a . b`, in the widest SIMD the CPU offers (as [`axpy`]).
 #[inline(always)]
-fn dot<S: Simd>(simd: S, a: &[f32], b: &[f32]) -> f32 {
+pub(super) fn dot<S: Simd>(simd: S, a: &[f32], b: &[f32]) -> f32 {
     debug_assert_eq!(a.len(), b.len());
     let (ah, at) = S::as_simd_f32s(a);
     let (bh, bt) = S::as_simd_f32s(b);
@@ -176,7 +181,7 @@ struct Operands<'a> {
 
 /// Heads whose sums one sweep over a vertex's neighbours accumulates, each in a SIMD
 /// register ([`ForwardRows`]).
-const HEADS_PER_SWEEP: usize = 4;
+pub(super) const HEADS_PER_SWEEP: usize = 4;
 
 /// One rayon task of the forward pass: the output rows from `first` on, `z` holding
 /// `z.len() / (M C)` of them. Run by [`Arch::dispatch`], so the loops compile once per
@@ -211,7 +216,6 @@ impl WithSimd for ForwardRows<'_> {
         let mp = m.div_ceil(HEADS_PER_SWEEP) * HEADS_PER_SWEEP;
         let mut neighbours: Vec<&[f32]> = Vec::with_capacity(k);
         let mut qs = vec![0.0f32; k * mp];
-        let zero = simd.splat_f32s(0.0);
         for (r, zi) in self.z.chunks_exact_mut(m * ch).enumerate() {
             let row = self.first + r;
             let (s, i) = (row / n, row % n);
@@ -230,41 +234,59 @@ impl WithSimd for ForwardRows<'_> {
                 weights_factored(&pq[j * 2 * m..j * 2 * m + m], qi, (ui, uj, c), q);
                 neighbours.push(&x[j * ch..(j + 1) * ch]);
             }
-            let blocks = ch / S::F32_LANES;
-            let tail = ch % S::F32_LANES;
-            for g in 0..mp / HEADS_PER_SWEEP {
-                let h0 = g * HEADS_PER_SWEEP;
-                let heads = HEADS_PER_SWEEP.min(m - h0);
-                // Whole vector blocks of the features.
-                for v in 0..blocks {
-                    let mut acc = [zero; HEADS_PER_SWEEP];
-                    for (u, xj) in neighbours.iter().enumerate() {
-                        let xv = S::as_simd_f32s(xj).0[v];
-                        let q = &qs[u * mp + h0..u * mp + h0 + HEADS_PER_SWEEP];
-                        for h in 0..HEADS_PER_SWEEP {
-                            acc[h] = simd.mul_add_e_f32s(simd.splat_f32s(q[h]), xv, acc[h]);
-                        }
-                    }
-                    for h in 0..heads {
-                        let out = &mut zi[(h0 + h) * ch..(h0 + h + 1) * ch];
-                        S::as_mut_simd_f32s(out).0[v] = acc[h];
-                    }
+            sweep(simd, &neighbours, &qs, mp, m, zi);
+        }
+    }
+}
+
+/// One vertex's head-weighted sums into `zi`, `[M, C]`: `zi[h] = sum_u qs[u mp + h]
+/// neighbours[u]` over its used neighbours' features (`C` each). For each vector block of
+/// the features and each group of [`HEADS_PER_SWEEP`] heads one sweep over the neighbours
+/// keeps the group's sums in registers (`qs` holds `mp` weights per neighbour, `mp` the
+/// heads rounded up to whole groups, the padding weights zero); the features past the last
+/// whole vector with masked loads and stores. Every element of `zi` is written.
+#[inline(always)]
+pub(super) fn sweep<S: Simd>(
+    simd: S,
+    neighbours: &[&[f32]],
+    qs: &[f32],
+    mp: usize,
+    m: usize,
+    zi: &mut [f32],
+) {
+    let zero = simd.splat_f32s(0.0);
+    let ch = zi.len() / m;
+    let blocks = ch / S::F32_LANES;
+    let tail = ch % S::F32_LANES;
+    for g in 0..mp / HEADS_PER_SWEEP {
+        let h0 = g * HEADS_PER_SWEEP;
+        let heads = HEADS_PER_SWEEP.min(m - h0);
+        for v in 0..blocks {
+            let mut acc = [zero; HEADS_PER_SWEEP];
+            for (u, xj) in neighbours.iter().enumerate() {
+                let xv = S::as_simd_f32s(xj).0[v];
+                let q = &qs[u * mp + h0..u * mp + h0 + HEADS_PER_SWEEP];
+                for h in 0..HEADS_PER_SWEEP {
+                    acc[h] = simd.mul_add_e_f32s(simd.splat_f32s(q[h]), xv, acc[h]);
                 }
-                // The features past the last whole block, with masked loads and stores.
-                if tail > 0 {
-                    let mut acc = [zero; HEADS_PER_SWEEP];
-                    for (u, xj) in neighbours.iter().enumerate() {
-                        let xv = simd.partial_load_f32s(S::as_simd_f32s(xj).1);
-                        let q = &qs[u * mp + h0..u * mp + h0 + HEADS_PER_SWEEP];
-                        for h in 0..HEADS_PER_SWEEP {
-                            acc[h] = simd.mul_add_e_f32s(simd.splat_f32s(q[h]), xv, acc[h]);
-                        }
-                    }
-                    for h in 0..heads {
-                        let out = &mut zi[(h0 + h) * ch..(h0 + h + 1) * ch];
-                        simd.partial_store_f32s(S::as_mut_simd_f32s(out).1, acc[h]);
-                    }
+            }
+            for h in 0..heads {
+                let out = &mut zi[(h0 + h) * ch..(h0 + h + 1) * ch];
+                S::as_mut_simd_f32s(out).0[v] = acc[h];
+            }
+        }
+        if tail > 0 {
+            let mut acc = [zero; HEADS_PER_SWEEP];
+            for (u, xj) in neighbours.iter().enumerate() {
+                let xv = simd.partial_load_f32s(S::as_simd_f32s(xj).1);
+                let q = &qs[u * mp + h0..u * mp + h0 + HEADS_PER_SWEEP];
+                for h in 0..HEADS_PER_SWEEP {
+                    acc[h] = simd.mul_add_e_f32s(simd.splat_f32s(q[h]), xv, acc[h]);
                 }
+            }
+            for h in 0..heads {
+                let out = &mut zi[(h0 + h) * ch..(h0 + h + 1) * ch];
+                simd.partial_store_f32s(S::as_mut_simd_f32s(out).1, acc[h]);
             }
         }
     }

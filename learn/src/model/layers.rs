@@ -8,6 +8,7 @@ use burn::tensor::{Device, Int, Tensor, TensorData};
 use std::sync::Arc;
 
 use super::feast::{self, Slots};
+use super::fused::HostBlock;
 use super::host;
 use crate::topology::Topology;
 
@@ -23,8 +24,16 @@ pub fn he() -> Initializer {
 /// A layer normalisation over the last axis (features) of `width`, or none: the
 /// normalisation of [`crate::config::ModelConfig::layer_norm`].
 pub fn maybe_norm(on: bool, width: usize, device: &Device) -> Option<LayerNorm> {
-    on.then(|| LayerNormConfig::new(width).init(device))
+    on.then(|| {
+        LayerNormConfig::new(width)
+            .with_epsilon(NORM_EPSILON)
+            .init(device)
+    })
 }
+
+/// The layer normalisations' epsilon (burn's default; not saved with the weights, so the
+/// host path of [`super::fused`] reads it here).
+pub const NORM_EPSILON: f64 = 1e-5;
 
 /// `x` through `norm` if there is one.
 pub fn normed<const D: usize>(norm: Option<&LayerNorm>, x: Tensor<D>) -> Tensor<D> {
@@ -143,6 +152,8 @@ impl SplitLinear {
 pub struct Graph {
     /// 1 / |N_i|, `[1, N, 1]`.
     pub inv_degree: Tensor<3>,
+    /// The same on the host, `[N]`.
+    pub(super) host_inv_degree: Arc<Vec<f32>>,
     /// N.
     pub vertices: usize,
     /// Padded neighbourhood slots per vertex K.
@@ -161,6 +172,7 @@ impl Graph {
                 TensorData::new(t.inv_degree(), [1, t.vertices, 1]),
                 device,
             ),
+            host_inv_degree: Arc::new(t.inv_degree()),
             vertices: t.vertices,
             slots: t.slots,
             host_slots: Arc::new(Slots {
@@ -262,6 +274,40 @@ impl FeaStConv {
             heads,
             output,
         }
+    }
+
+    /// This convolution's parameters (and `norm`'s, the layer normalisation after it) on
+    /// the host, for [`super::fused::residual_stack`].
+    pub(super) fn host_block(&self, norm: Option<&LayerNorm>) -> HostBlock {
+        let floats = |t: Tensor<1>| {
+            t.into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .expect("f32 data")
+        };
+        let flat = |t: Tensor<2>| {
+            let n: usize = t.dims().iter().product();
+            floats(t.reshape([n]))
+        };
+        HostBlock {
+            u: flat(self.u.weight.val()),
+            c: floats(self.c.val()),
+            w: flat(self.lin.weight.val()),
+            bias: floats(self.bias.val()),
+            norm: norm.map(|n| {
+                let gamma = floats(n.gamma.val());
+                let beta = match &n.beta {
+                    Some(b) => floats(b.val()),
+                    None => vec![0.0; gamma.len()],
+                };
+                (gamma, beta, NORM_EPSILON as f32)
+            }),
+        }
+    }
+
+    /// Attention heads M.
+    pub fn heads(&self) -> usize {
+        self.heads
     }
 
     /// # Shapes

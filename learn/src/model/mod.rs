@@ -8,6 +8,7 @@
 //! G^P = M + T^P.
 
 pub mod feast;
+pub mod fused;
 pub mod host;
 mod layers;
 
@@ -163,12 +164,49 @@ impl ConvStack {
     /// # Shapes
     /// `h`: `[B, N, C]`, `xyz`: `[B, N, 3]` -> `[B, N, C]`.
     fn forward(&self, mut h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
+        if host::host(&h) {
+            return self.forward_host(h, xyz, g);
+        }
         let how = g.aggregation(h.dims()[0], &h.device());
         for (i, conv) in self.blocks.iter().enumerate() {
             let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &how); // [B, N, C]
             h = h + leaky(normed(self.norms.get(i), y), self.slope);
         }
         h
+    }
+
+    /// [`ConvStack::forward`] without autodiff on the CPU backends: all blocks in
+    /// [`fused::residual_stack`].
+    fn forward_host(&self, h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
+        let [b, n, width] = h.dims();
+        let device = h.device();
+        let floats = |t: Tensor<3>| {
+            t.into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .expect("f32 data")
+        };
+        let blocks: Vec<fused::HostBlock> = self
+            .blocks
+            .iter()
+            .enumerate()
+            .map(|(i, conv)| conv.host_block(self.norms.get(i)))
+            .collect();
+        let out = fused::residual_stack(
+            &floats(h),
+            &floats(xyz),
+            &blocks,
+            &g.host_slots,
+            &g.host_inv_degree,
+            fused::StackShape {
+                batch: b,
+                vertices: n,
+                width,
+                heads: self.blocks.first().map_or(1, |c| c.heads()),
+                slope: self.slope as f32,
+            },
+        );
+        Tensor::from_data(burn::tensor::TensorData::new(out, [b, n, width]), &device)
     }
 }
 
@@ -472,4 +510,88 @@ pub fn forward_flops(c: &ModelConfig, params: usize, vertices: usize, slots: usi
     f += mlp(n, c.fusion[0], &c.fusion[1..]);
     f += dense(n, *c.fusion.last().unwrap(), 3);
     f
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::Param;
+    use burn::tensor::{Device, Distribution, Tensor};
+
+    use super::*;
+    use crate::topology::Topology;
+
+    fn floats(x: Tensor<3>) -> Vec<f32> {
+        x.into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap()
+    }
+
+    /// The residual blocks fused on the host (off the autodiff device) give burn's
+    /// operations' values (on it), with and without layer normalisation, the
+    /// normalisations' gains and offsets drawn away from 1 and 0.
+    #[test]
+    fn fused_residual_blocks_are_burns_operations() {
+        let ad = Device::default().autodiff();
+        ad.seed(9);
+        let (w, rows) = (13u32, 7u32);
+        let mut tris = Vec::new();
+        for y in 0..rows - 1 {
+            for x in 0..w - 1 {
+                let v = y * w + x;
+                tris.push([v, v + 1, v + w]);
+                tris.push([v + 1, v + w + 1, v + w]);
+            }
+        }
+        let topo = Topology::new((w * rows) as usize, &tris);
+        let n = topo.vertices;
+        for (width, heads, layer_norm) in [(48, 4, false), (20, 3, true)] {
+            let c = ModelConfig {
+                conv_width: width,
+                conv_heads: heads,
+                conv_blocks: 3,
+                layer_norm,
+                ..ModelConfig::default()
+            };
+            let mut stack = ConvStack::new(&c, &ad);
+            for norm in stack.norms.iter_mut() {
+                let draw = |lo: f64, hi: f64| {
+                    Param::from_tensor(Tensor::<1>::random(
+                        [width],
+                        Distribution::Uniform(lo, hi),
+                        &ad,
+                    ))
+                };
+                norm.gamma = draw(0.5, 1.5);
+                norm.beta = Some(draw(-0.3, 0.3));
+            }
+            for conv in stack.blocks.iter_mut() {
+                conv.bias = Param::from_tensor(Tensor::<1>::random(
+                    [width],
+                    Distribution::Uniform(-0.2, 0.2),
+                    &ad,
+                ));
+            }
+            let b = 2;
+            let h = Tensor::<3>::random([b, n, width], Distribution::Normal(0.0, 1.0), &ad);
+            let xyz = Tensor::<3>::random([b, n, 3], Distribution::Normal(0.0, 1.0), &ad);
+            let want = stack.forward(h.clone(), xyz.clone(), &Graph::new(&topo, &ad));
+            let plain = ad.clone().inner();
+            let stack = stack.valid();
+            let (h, xyz) = (h.inner(), xyz.inner());
+            assert!(host::host(&h));
+            let got = stack.forward(h, xyz, &Graph::new(&topo, &plain));
+            let (got, want) = (floats(got), floats(want.inner()));
+            let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
+            let err = got
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f32::max);
+            assert!(
+                err / scale < 1e-5,
+                "width {width}, heads {heads}, layer norm {layer_norm}: {err} of {scale}"
+            );
+        }
+    }
 }
