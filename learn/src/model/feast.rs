@@ -116,17 +116,22 @@ pub(super) fn weights_factored(
     pj: &[f32],
     qi: &[f32],
     (ui, uj, c): (&[f32], &[f32], &[f32]),
+    scale: f32,
     q: &mut [f32],
 ) {
     let mut sum = 0.0;
-    for h in 0..q.len() {
-        q[h] = pj[h] * qi[h];
-        sum += q[h];
+    for ((o, &p), &f) in q.iter_mut().zip(pj).zip(qi) {
+        *o = p * f;
+        sum += *o;
     }
     if sum < 1e-30 || !sum.is_finite() {
-        return weights(ui, uj, c, q);
+        weights(ui, uj, c, q);
+        for qh in q.iter_mut() {
+            *qh *= scale;
+        }
+        return;
     }
-    let inv = 1.0 / sum;
+    let inv = scale / sum;
     for qh in q.iter_mut() {
         *qh *= inv;
     }
@@ -231,7 +236,7 @@ impl WithSimd for ForwardRows<'_> {
                 let uj = &ux[j * m..(j + 1) * m];
                 let u = neighbours.len();
                 let q = &mut qs[u * mp..u * mp + m];
-                weights_factored(&pq[j * 2 * m..j * 2 * m + m], qi, (ui, uj, c), q);
+                weights_factored(&pq[j * 2 * m..j * 2 * m + m], qi, (ui, uj, c), 1.0, q);
                 neighbours.push(&x[j * ch..(j + 1) * ch]);
             }
             sweep(simd, &neighbours, &qs, mp, m, zi);
@@ -442,7 +447,7 @@ impl WithSimd for BackwardItem<'_> {
                 }
                 let j = slots.index[slot] as usize;
                 let pj = &pqs[j * 2 * m..j * 2 * m + m];
-                weights_factored(pj, qi, (ui, &uxs[j * m..(j + 1) * m], c), &mut q);
+                weights_factored(pj, qi, (ui, &uxs[j * m..(j + 1) * m], c), 1.0, &mut q);
                 let xj = &xs[j * ch..(j + 1) * ch];
                 let gxj = &mut gxs[j * ch..(j + 1) * ch];
                 let mut total = 0.0;

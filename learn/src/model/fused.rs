@@ -155,10 +155,11 @@ fn stack_at(
         let (x_in, ux, pq) = (&x, &ux, &pq);
         next.par_chunks_mut(VERTICES_PER_TASK * ci)
             .enumerate()
-            .for_each(|(t, out)| {
+            .for_each_init(Scratch::default, |scratch, (t, out)| {
                 level.run(BlockRows {
                     first: t * VERTICES_PER_TASK,
                     out,
+                    scratch,
                     x: x_in,
                     ux,
                     pq,
@@ -170,10 +171,11 @@ fn stack_at(
             });
         std::mem::swap(&mut x, &mut next);
     }
-    x.chunks_exact(ci)
-        .flat_map(|row| &row[..width])
-        .copied()
-        .collect()
+    let mut out = Vec::with_capacity(rows * width);
+    for row in x.chunks_exact(ci) {
+        out.extend_from_slice(&row[..width]);
+    }
+    out
 }
 
 /// The head logits of a task's rows: `o[r, h] = xs[r] . ut[h]`, `ut` `[M, C_in]`. Run
@@ -203,12 +205,31 @@ impl WithSimd for Logits<'_> {
     }
 }
 
+/// A worker's buffers for [`BlockRows`], reused across its tasks.
+#[derive(Debug, Default)]
+struct Scratch {
+    /// Head weights of a vertex's used slots, `[K, M rounded up to sweeps]`.
+    qs: Vec<f32>,
+    /// The tile's head-weighted sums, `[tile, M C_in]`.
+    z: Vec<f32>,
+    /// The tile's outputs, `[tile, O]`.
+    y: Vec<f32>,
+}
+
+/// `v` at least `len` long.
+fn grow(v: &mut Vec<f32>, len: usize) {
+    if v.len() < len {
+        v.resize(len, 0.0);
+    }
+}
+
 /// One task of a block: output rows `first..` (each `[h', xyz]`, `out` holding
 /// `out.len() / (O + 3)` of them). Run by [`Arch::dispatch`] so the loops compile once
 /// per SIMD level and the CPU's widest runs.
 struct BlockRows<'a> {
     first: usize,
     out: &'a mut [f32],
+    scratch: &'a mut Scratch,
     x: &'a [f32],
     ux: &'a [f32],
     pq: &'a [f32],
@@ -237,8 +258,14 @@ impl WithSimd for BlockRows<'_> {
         let k = slots.k;
         let mp = m.div_ceil(HEADS_PER_SWEEP) * HEADS_PER_SWEEP;
         let mut neighbours: Vec<&[f32]> = Vec::with_capacity(k);
-        let mut qs = vec![0.0f32; k * mp];
-        let mut z = vec![0.0f32; tile * kdim];
+        let Scratch { qs, z, y } = self.scratch;
+        // Grown once per worker and not cleared: the sums and products write every
+        // element they read back (the padding heads' weights are set here).
+        grow(qs, k * mp);
+        grow(z, tile * kdim);
+        grow(y, tile * width);
+        qs.fill(0.0);
+        let (z, y) = (&mut z[..tile * kdim], &mut y[..tile * width]);
         // The head-weighted sums of the tile's vertices, divided by |N_i|.
         for (r, zi) in z.chunks_exact_mut(kdim).enumerate() {
             let row = self.first + r;
@@ -258,18 +285,15 @@ impl WithSimd for BlockRows<'_> {
                     &pq[j * 2 * m..j * 2 * m + m],
                     qi,
                     (ui, &ux[j * m..(j + 1) * m], &block.c),
+                    scale,
                     q,
                 );
-                for w in q.iter_mut() {
-                    *w *= scale;
-                }
                 neighbours.push(&x[j * ci..(j + 1) * ci]);
             }
-            sweep(simd, &neighbours, &qs, mp, m, zi);
+            sweep(simd, &neighbours, qs, mp, m, zi);
         }
         // The tile's outputs W z, then bias, normalisation, activation and residual.
-        let mut y = vec![0.0f32; tile * width];
-        tile_product(simd, &z, kdim, &block.w, width, &mut y);
+        tile_product(simd, z, kdim, &block.w, width, y);
         for (r, (o, yr)) in self
             .out
             .chunks_exact_mut(ci)
@@ -455,5 +479,73 @@ mod tests {
             }
         }
         assert!(checked >= 4, "{checked}");
+    }
+}
+#[cfg(test)]
+mod tmp_bench {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    #[test]
+    fn tmp_stack_timing() {
+        let w = 100u32;
+        let mut tris = Vec::new();
+        for y in 0..w - 1 {
+            for x in 0..w - 1 {
+                let v = y * w + x;
+                tris.push([v, v + 1, v + w]);
+                tris.push([v + 1, v + w + 1, v + w]);
+            }
+        }
+        let topo = crate::topology::Topology::new((w * w) as usize, &tris);
+        let n = topo.vertices;
+        let slots = Slots {
+            vertices: n,
+            k: topo.slots,
+            index: topo.padded.iter().map(|&j| j as u32).collect(),
+            used: topo.padded_mask.iter().map(|&u| u != 0.0).collect(),
+        };
+        let inv_degree = topo.inv_degree();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (width, heads) = (48, 4);
+        let ci = width + 3;
+        let mut draw = |len: usize, s: f32| -> Vec<f32> {
+            (0..len).map(|_| rng.random_range(-s..s)).collect()
+        };
+        let blocks: Vec<HostBlock> = (0..6)
+            .map(|_| HostBlock {
+                u: draw(ci * heads, 0.5),
+                c: draw(heads, 0.3),
+                w: draw(heads * ci * width, 0.2),
+                bias: draw(width, 0.1),
+                norm: None,
+            })
+            .collect();
+        for b in [1usize, 16] {
+            let (h, xyz) = (draw(b * n * width, 1.0), draw(b * n * 3, 1.0));
+            let shape = StackShape {
+                batch: b,
+                vertices: n,
+                width,
+                heads,
+                slope: 0.1,
+            };
+            for nb in [0usize, 1, 6] {
+                let mut times = Vec::new();
+                for _ in 0..15 {
+                    let t = std::time::Instant::now();
+                    std::hint::black_box(residual_stack(
+                        &h,
+                        &xyz,
+                        &blocks[..nb],
+                        &slots,
+                        &inv_degree,
+                        shape,
+                    ));
+                    times.push(t.elapsed().as_secs_f64() * 1e3);
+                }
+                times.sort_by(f64::total_cmp);
+                println!("batch {b} blocks {nb}: {:.2} ms", times[7]);
+            }
+        }
     }
 }
