@@ -143,6 +143,12 @@ fn stack_at(
         assert_eq!(block.c.len(), m, "c is [M]");
         assert_eq!(block.w.len(), m * ci * width, "W is [M C_in, O]");
         assert_eq!(block.bias.len(), width, "b is [O]");
+        if let Some((gamma, beta, _)) = &block.norm {
+            assert!(
+                gamma.len() == width && beta.len() == width,
+                "the norm is [O]"
+            );
+        }
         // The head logits u . x (u's columns as rows), then their factors.
         let ut: Vec<f32> = (0..m)
             .flat_map(|h| (0..ci).map(move |e| block.u[e * m + h]))
@@ -259,8 +265,8 @@ impl WithSimd for BlockRows<'_> {
         let mp = m.div_ceil(HEADS_PER_SWEEP) * HEADS_PER_SWEEP;
         let mut neighbours: Vec<&[f32]> = Vec::with_capacity(k);
         let Scratch { qs, z, y } = self.scratch;
-        // Grown once per worker and not cleared: the sums and products write every
-        // element they read back (the padding heads' weights are set here).
+        // Grown once per worker; the sums and products are not cleared, as they write
+        // every element read back; the weights are, so that the padding heads' are zero.
         grow(qs, k * mp);
         grow(z, tile * kdim);
         grow(y, tile * width);
@@ -305,12 +311,7 @@ impl WithSimd for BlockRows<'_> {
                 *v += b;
             }
             if let Some((gamma, beta, eps)) = &block.norm {
-                let mean = yr.iter().sum::<f32>() / width as f32;
-                let var = yr.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / width as f32;
-                let inv = 1.0 / (var + eps).sqrt();
-                for ((v, &g), &b) in yr.iter_mut().zip(gamma).zip(beta) {
-                    *v = (*v - mean) * inv * g + b;
-                }
+                layer_norm_row(yr, gamma, beta, *eps);
             }
             for ((o, &v), &h) in o[..width].iter_mut().zip(yr.iter()).zip(&xr[..width]) {
                 *o = h + if v >= 0.0 { v } else { v * slope };
@@ -320,7 +321,8 @@ impl WithSimd for BlockRows<'_> {
     }
 }
 
-/// `y = z w` for a tile: `z` `[R, K]`, `w` `[K, O]`, `y` `[R, O]` (zeroed by the caller).
+/// `y = z w` for a tile: `z` `[R, K]`, `w` `[K, O]`, `y` `[R, O]`, every element of `y`
+/// written (it may hold anything before).
 /// Blocks of [`ROWS_TOGETHER`] rows and [`COLUMN_VECTORS`] output vectors accumulate in
 /// registers over K; the rows and vectors left over take smaller blocks, and the columns
 /// past the last whole vector a scalar loop.
@@ -431,7 +433,13 @@ mod tests {
         let inv_degree = topo.inv_degree();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let mut checked = 0;
-        for (width, heads, norm) in [(48, 4, false), (13, 3, true), (61, 8, true), (16, 1, false)] {
+        for (width, heads, norm) in [
+            (48, 4, false),
+            (13, 3, true),
+            (61, 8, true),
+            (16, 1, false),
+            (5, 2, true),
+        ] {
             let ci = width + 3;
             let mut draw = |len: usize, s: f32| -> Vec<f32> {
                 (0..len).map(|_| rng.random_range(-s..s)).collect()
@@ -445,7 +453,8 @@ mod tests {
                     norm: norm.then(|| (draw(width, 1.5), draw(width, 0.2), 1e-5)),
                 })
                 .collect();
-            let b = 2;
+            // 3 x 98 rows: tiles of 64, the last of 38, not a whole number of 4-row blocks.
+            let b = 3;
             let (h, xyz) = (draw(b * n * width, 1.0), draw(b * n * 3, 1.0));
             let shape = StackShape {
                 batch: b,
@@ -478,6 +487,250 @@ mod tests {
                 checked += 1;
             }
         }
-        assert!(checked >= 4, "{checked}");
+        assert!(checked >= 5, "{checked}");
+    }
+
+    /// The same for the fusion head: two per-vertex parts whose widths fill no vector, a
+    /// per-drape constant, layers with and without normalisation and activation, down to
+    /// 3 outputs, on 3 x 98 rows.
+    #[test]
+    fn every_simd_level_gives_the_scalar_head() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+        let mut draw = |len: usize, s: f32| -> Vec<f32> {
+            (0..len).map(|_| rng.random_range(-s..s)).collect()
+        };
+        let (b, n) = (3, 98);
+        let (p1, p2) = (draw(b * n * 7, 1.0), draw(b * n * 5, 1.0));
+        let mut dense = |i: usize, o: usize, norm: bool, leaky: bool| HostDense {
+            w: draw(i * o, 0.4),
+            b: draw(o, 0.1),
+            norm: norm.then(|| (draw(o, 1.5), draw(o, 0.2), 1e-5)),
+            leaky,
+        };
+        let first = dense(12, 20, true, true);
+        let rest = [
+            dense(20, 13, false, true),
+            dense(13, 9, true, true),
+            dense(9, 3, false, false),
+        ];
+        let constant = draw(b * 20, 0.5);
+        let parts = [(p1.as_slice(), 7), (p2.as_slice(), 5)];
+        let run = |level| head_at(level, &parts, &constant, &first, &rest, (b, n), 0.1);
+        let want = run(Level::Scalar);
+        assert_eq!(want.len(), b * n * 3);
+        // The first row by hand.
+        let mut x: Vec<f32> = p1[..7].iter().chain(&p2[..5]).copied().collect();
+        for (k, layer) in std::iter::once(&first).chain(&rest).enumerate() {
+            let o = layer.w.len() / x.len();
+            let bias = if k == 0 {
+                &constant[..20]
+            } else {
+                &layer.b[..]
+            };
+            let mut y: Vec<f32> = (0..o)
+                .map(|c| {
+                    x.iter()
+                        .enumerate()
+                        .map(|(e, v)| v * layer.w[e * o + c])
+                        .sum::<f32>()
+                        + bias[c]
+                })
+                .collect();
+            if let Some((g, bt, eps)) = &layer.norm {
+                layer_norm_row(&mut y, g, bt, *eps);
+            }
+            if layer.leaky {
+                y.iter_mut()
+                    .for_each(|v| *v = if *v >= 0.0 { *v } else { 0.1 * *v });
+            }
+            x = y;
+        }
+        for (a, e) in want[..3].iter().zip(&x) {
+            assert!((a - e).abs() <= 1e-5 * (1.0 + e.abs()), "{a} against {e}");
+        }
+        let mut levels = vec![Level::Best];
+        #[cfg(target_arch = "x86_64")]
+        {
+            levels.extend(pulp::x86::V3::try_new().map(Level::Avx2));
+            levels.extend(pulp::x86::V4::try_new().map(Level::Avx512));
+        }
+        for level in levels {
+            let got = run(level);
+            let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
+            let err = got
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f32::max);
+            assert!(err / scale < 1e-5, "{level:?}: {err} of {scale}");
+        }
+    }
+}
+
+/// A point-wise dense layer on the host: `y = act(norm(x w + b))`.
+#[derive(Debug, Clone)]
+pub struct HostDense {
+    /// `[input, output]` (burn's layout).
+    pub w: Vec<f32>,
+    /// `[output]`.
+    pub b: Vec<f32>,
+    /// Layer normalisation: gamma, beta, epsilon.
+    pub norm: Option<(Vec<f32>, Vec<f32>, f32)>,
+    /// Whether the leaky ReLU follows.
+    pub leaky: bool,
+}
+
+/// The fusion head at inference: per vertex, the first layer on the concatenation of
+/// `parts` (each `[B, N, d_k]`, their maps stacked in `first.w`) plus a per-drape row of
+/// `constant` (`[B, F0]`: the broadcast features' products and the bias; `first.b` is
+/// ignored), then `rest`, all per tile of [`VERTICES_PER_TASK`] vertices in cache, with no
+/// tensor between the layers.
+///
+/// # Shapes
+/// -> `[B, N, rest.last().b.len()]`.
+pub fn pointwise_head(
+    parts: &[(&[f32], usize)],
+    constant: &[f32],
+    first: &HostDense,
+    rest: &[HostDense],
+    (batch, n): (usize, usize),
+    slope: f32,
+) -> Vec<f32> {
+    head_at(Level::Best, parts, constant, first, rest, (batch, n), slope)
+}
+
+/// [`pointwise_head`] at `level`.
+fn head_at(
+    level: Level,
+    parts: &[(&[f32], usize)],
+    constant: &[f32],
+    first: &HostDense,
+    rest: &[HostDense],
+    (batch, n): (usize, usize),
+    slope: f32,
+) -> Vec<f32> {
+    let rows = batch * n;
+    let din: usize = parts.iter().map(|p| p.1).sum();
+    let f0 = first.w.len() / din.max(1);
+    assert_eq!(
+        first.w.len(),
+        din * f0,
+        "the first layer's maps are [sum d_k, F0]"
+    );
+    assert_eq!(
+        constant.len(),
+        batch * f0,
+        "one row of the constant per drape"
+    );
+    for (p, d) in parts {
+        assert_eq!(p.len(), rows * d, "each part is [B, N, d_k]");
+    }
+    let out_width = rest.last().map_or(f0, |l| l.b.len());
+    let mut out = vec![0.0f32; rows * out_width];
+    out.par_chunks_mut(VERTICES_PER_TASK * out_width)
+        .enumerate()
+        .for_each(|(t, out)| {
+            level.run(HeadRows {
+                first_row: t * VERTICES_PER_TASK,
+                out,
+                parts,
+                constant,
+                first,
+                rest,
+                n,
+                slope,
+            })
+        });
+    out
+}
+
+/// One task of [`pointwise_head`].
+struct HeadRows<'a> {
+    first_row: usize,
+    out: &'a mut [f32],
+    parts: &'a [(&'a [f32], usize)],
+    constant: &'a [f32],
+    first: &'a HostDense,
+    rest: &'a [HostDense],
+    n: usize,
+    slope: f32,
+}
+
+impl WithSimd for HeadRows<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let din: usize = self.parts.iter().map(|p| p.1).sum();
+        let f0 = self.first.w.len() / din;
+        let out_width = self.rest.last().map_or(f0, |l| l.b.len());
+        let tile = self.out.len() / out_width;
+        // The tile's inputs side by side.
+        let mut x = Vec::with_capacity(tile * din);
+        for r in 0..tile {
+            let row = self.first_row + r;
+            for (p, d) in self.parts {
+                x.extend_from_slice(&p[row * d..(row + 1) * d]);
+            }
+        }
+        let mut y = vec![0.0f32; tile * f0];
+        tile_product(simd, &x, din, &self.first.w, f0, &mut y);
+        for (r, yr) in y.chunks_exact_mut(f0).enumerate() {
+            let s = (self.first_row + r) / self.n;
+            let c = &self.constant[s * f0..(s + 1) * f0];
+            finish_row(
+                yr,
+                c,
+                self.first.norm.as_ref(),
+                self.first.leaky,
+                self.slope,
+            );
+        }
+        let (mut x, mut width) = (y, f0);
+        for layer in self.rest {
+            let o = layer.b.len();
+            let mut y = vec![0.0f32; tile * o];
+            tile_product(simd, &x, width, &layer.w, o, &mut y);
+            for yr in y.chunks_exact_mut(o) {
+                finish_row(yr, &layer.b, layer.norm.as_ref(), layer.leaky, self.slope);
+            }
+            (x, width) = (y, o);
+        }
+        self.out.copy_from_slice(&x);
+    }
+}
+
+/// `y <- act(norm(y + b))` for one row.
+#[inline(always)]
+fn finish_row(
+    y: &mut [f32],
+    b: &[f32],
+    norm: Option<&(Vec<f32>, Vec<f32>, f32)>,
+    act: bool,
+    slope: f32,
+) {
+    for (v, &c) in y.iter_mut().zip(b) {
+        *v += c;
+    }
+    if let Some((gamma, beta, eps)) = norm {
+        layer_norm_row(y, gamma, beta, *eps);
+    }
+    if act {
+        for v in y.iter_mut() {
+            *v = if *v >= 0.0 { *v } else { *v * slope };
+        }
+    }
+}
+
+/// burn's layer normalisation of one row: `(y - mean) / sqrt(var + eps) gamma + beta`, the
+/// variance biased.
+#[inline(always)]
+fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32], eps: f32) {
+    let w = y.len() as f32;
+    let mean = y.iter().sum::<f32>() / w;
+    let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / w;
+    let inv = 1.0 / (var + eps).sqrt();
+    for ((v, &g), &b) in y.iter_mut().zip(gamma).zip(beta) {
+        *v = (*v - mean) * inv * g + b;
     }
 }

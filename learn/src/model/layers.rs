@@ -8,7 +8,7 @@ use burn::tensor::{Device, Int, Tensor, TensorData};
 use std::sync::Arc;
 
 use super::feast::{self, Slots};
-use super::fused::HostBlock;
+use super::fused::{HostBlock, HostDense};
 use super::host;
 use crate::topology::Topology;
 
@@ -29,6 +29,38 @@ pub fn maybe_norm(on: bool, width: usize, device: &Device) -> Option<LayerNorm> 
             .with_epsilon(NORM_EPSILON)
             .init(device)
     })
+}
+
+/// A tensor's values on the host, flattened.
+pub(super) fn host_floats<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("f32 data")
+}
+
+/// A layer normalisation's gamma, beta (zeros when it has none) and epsilon on the host.
+pub(super) fn host_norm(n: &LayerNorm) -> (Vec<f32>, Vec<f32>, f32) {
+    let gamma = host_floats(n.gamma.val());
+    let beta = match &n.beta {
+        Some(b) => host_floats(b.val()),
+        None => vec![0.0; gamma.len()],
+    };
+    (gamma, beta, NORM_EPSILON as f32)
+}
+
+/// A linear layer (and the normalisation and activation after it) on the host.
+pub(super) fn host_dense(l: &Linear, norm: Option<&LayerNorm>, leaky: bool) -> HostDense {
+    let w = host_floats(l.weight.val());
+    let out = l.weight.val().dims()[1];
+    HostDense {
+        w,
+        b: l.bias
+            .as_ref()
+            .map_or_else(|| vec![0.0; out], |b| host_floats(b.val())),
+        norm: norm.map(host_norm),
+        leaky,
+    }
 }
 
 /// The layer normalisations' epsilon (burn's default; not saved with the weights, so the
@@ -91,6 +123,15 @@ impl Mlp {
         }
     }
 
+    /// The layers on the host ([`super::fused::pointwise_head`]).
+    pub(super) fn host_layers(&self) -> Vec<HostDense> {
+        self.layers
+            .iter()
+            .enumerate()
+            .map(|(i, l)| host_dense(l, self.norms.get(i), true))
+            .collect()
+    }
+
     /// # Shapes
     /// `[.., input]` -> `[.., widths.last()]`.
     pub fn forward<const D: usize>(&self, mut x: Tensor<D>) -> Tensor<D> {
@@ -129,6 +170,19 @@ impl SplitLinear {
             })
             .collect();
         Self { parts }
+    }
+
+    /// Each input's map `[C_k, output]` and bias (the first's) on the host.
+    pub(super) fn host_maps(&self) -> Vec<(Vec<f32>, Option<Vec<f32>>)> {
+        self.parts
+            .iter()
+            .map(|l| {
+                (
+                    host_floats(l.weight.val()),
+                    l.bias.as_ref().map(|b| host_floats(b.val())),
+                )
+            })
+            .collect()
     }
 
     /// # Shapes
@@ -279,29 +333,12 @@ impl FeaStConv {
     /// This convolution's parameters (and `norm`'s, the layer normalisation after it) on
     /// the host, for [`super::fused::residual_stack`].
     pub(super) fn host_block(&self, norm: Option<&LayerNorm>) -> HostBlock {
-        let floats = |t: Tensor<1>| {
-            t.into_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .expect("f32 data")
-        };
-        let flat = |t: Tensor<2>| {
-            let n: usize = t.dims().iter().product();
-            floats(t.reshape([n]))
-        };
         HostBlock {
-            u: flat(self.u.weight.val()),
-            c: floats(self.c.val()),
-            w: flat(self.lin.weight.val()),
-            bias: floats(self.bias.val()),
-            norm: norm.map(|n| {
-                let gamma = floats(n.gamma.val());
-                let beta = match &n.beta {
-                    Some(b) => floats(b.val()),
-                    None => vec![0.0; gamma.len()],
-                };
-                (gamma, beta, NORM_EPSILON as f32)
-            }),
+            u: host_floats(self.u.weight.val()),
+            c: host_floats(self.c.val()),
+            w: host_floats(self.lin.weight.val()),
+            bias: host_floats(self.bias.val()),
+            norm: norm.map(host_norm),
         }
     }
 

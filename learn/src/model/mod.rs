@@ -449,11 +449,72 @@ impl GarNet {
                 local
             });
         }
+        if host::host(&fused[0]) {
+            return self.head_host(fused);
+        }
         let f = leaky(
             normed(self.fusion_in_norm.as_ref(), self.fusion_in.forward(fused)),
             self.slope,
         ); // [B, N, F0]
         self.out.forward(self.fusion.forward(f)) // [B, N, 3]
+    }
+
+    /// The fusion head without autodiff on the CPU backends
+    /// ([`fused::pointwise_head`]): the per-drape inputs' products (the global garment and
+    /// body features) and the bias made once per drape, the per-vertex inputs through all
+    /// layers per tile.
+    ///
+    /// # Shapes
+    /// `fused`: `[B, N or 1, C_k]` each -> `[B, N, 3]`.
+    fn head_host(&self, fused: Vec<Tensor<3>>) -> Tensor<3> {
+        let [b, n, _] = fused[0].dims();
+        let device = fused[0].device();
+        let maps = self.fusion_in.host_maps();
+        let f0 = maps[0].0.len() / fused[0].dims()[2];
+        let mut constant = vec![0.0f32; b * f0];
+        let (mut parts, mut stacked) = (Vec::new(), Vec::new());
+        for (t, (w, bias)) in fused.into_iter().zip(maps) {
+            let [_, rows, d] = t.dims();
+            let v = layers::host_floats(t);
+            if let Some(bias) = bias {
+                for row in constant.chunks_exact_mut(f0) {
+                    for (o, c) in row.iter_mut().zip(&bias) {
+                        *o += c;
+                    }
+                }
+            }
+            if rows == n {
+                parts.push((v, d));
+                stacked.extend(w);
+            } else {
+                for (s, row) in constant.chunks_exact_mut(f0).enumerate() {
+                    for (e, &x) in v[s * d..(s + 1) * d].iter().enumerate() {
+                        for (o, &wv) in row.iter_mut().zip(&w[e * f0..(e + 1) * f0]) {
+                            *o += x * wv;
+                        }
+                    }
+                }
+            }
+        }
+        let first = fused::HostDense {
+            w: stacked,
+            b: vec![0.0; f0],
+            norm: self.fusion_in_norm.as_ref().map(|l| layers::host_norm(l)),
+            leaky: true,
+        };
+        let mut rest = self.fusion.host_layers();
+        rest.push(layers::host_dense(&self.out, None, false));
+        let part_refs: Vec<(&[f32], usize)> =
+            parts.iter().map(|(v, d)| (v.as_slice(), *d)).collect();
+        let out = fused::pointwise_head(
+            &part_refs,
+            &constant,
+            &first,
+            &rest,
+            (b, n),
+            self.slope as f32,
+        );
+        Tensor::from_data(burn::tensor::TensorData::new(out, [b, n, 3]), &device)
     }
 }
 
