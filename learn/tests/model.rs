@@ -495,7 +495,14 @@ fn swapped_body_features_equal_draping_with_the_other_body() {
         let swapped = flat(net.forward_swapped(&input, &g, swap));
         let other = flat(net.forward(&exchanged, &g));
         let worst = max_abs_diff(&swapped, &other);
-        assert!(worst < 1e-5, "{variant:?}: {worst}");
+        // Rounding only: the jittered weights give outputs up to about 1e4, and another
+        // order of the same sums (other tests share the device's generator and threads, so
+        // the draws and the work's split vary) moves them by a few 1e-8 of that.
+        let scale = other.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(
+            worst < 1e-5 + 1e-7 * scale,
+            "{variant:?}: {worst} of {scale}"
+        );
         // And the swap does change the prediction (the bodies differ).
         let moved = max_abs_diff(&swapped, &own);
         assert!(moved > 1e-3, "{variant:?}: {moved}");
