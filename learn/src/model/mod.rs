@@ -499,7 +499,7 @@ impl GarNet {
         let first = fused::HostDense {
             w: stacked,
             b: vec![0.0; f0],
-            norm: self.fusion_in_norm.as_ref().map(|l| layers::host_norm(l)),
+            norm: self.fusion_in_norm.as_ref().map(layers::host_norm),
             leaky: true,
         };
         let mut rest = self.fusion.host_layers();
