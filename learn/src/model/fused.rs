@@ -411,6 +411,17 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
+    /// The best level and each level this CPU has besides the scalar one.
+    fn levels() -> Vec<Level> {
+        let mut levels = vec![Level::Best];
+        #[cfg(target_arch = "x86_64")]
+        {
+            levels.extend(pulp::x86::V3::try_new().map(Level::Avx2));
+            levels.extend(pulp::x86::V4::try_new().map(Level::Avx512));
+        }
+        levels
+    }
+
     /// Every SIMD level this CPU has gives the scalar level's stack, for widths whose
     /// outputs fill whole vector blocks, leave a part vector, or fill none, head counts in
     /// and out of whole sweeps, with and without layer normalisation, and a vertex count
@@ -466,20 +477,8 @@ mod tests {
             let run = |level| stack_at(level, &h, &xyz, &blocks, &slots, &inv_degree, shape);
             let want = run(Level::Scalar);
             assert_eq!(want.len(), b * n * width);
-            let mut levels = vec![Level::Best];
-            #[cfg(target_arch = "x86_64")]
-            {
-                levels.extend(pulp::x86::V3::try_new().map(Level::Avx2));
-                levels.extend(pulp::x86::V4::try_new().map(Level::Avx512));
-            }
-            for level in levels {
-                let got = run(level);
-                let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
-                let err = got
-                    .iter()
-                    .zip(&want)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f32::max);
+            for level in levels() {
+                let (err, scale) = largest_difference(&run(level), &want);
                 assert!(
                     err / scale < 1e-5,
                     "width {width}, heads {heads}, {level:?}: {err} of {scale}"
@@ -548,23 +547,25 @@ mod tests {
         for (a, e) in want[..3].iter().zip(&x) {
             assert!((a - e).abs() <= 1e-5 * (1.0 + e.abs()), "{a} against {e}");
         }
-        let mut levels = vec![Level::Best];
-        #[cfg(target_arch = "x86_64")]
-        {
-            levels.extend(pulp::x86::V3::try_new().map(Level::Avx2));
-            levels.extend(pulp::x86::V4::try_new().map(Level::Avx512));
-        }
-        for level in levels {
-            let got = run(level);
-            let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
-            let err = got
-                .iter()
-                .zip(&want)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f32::max);
+        for level in levels() {
+            let (err, scale) = largest_difference(&run(level), &want);
             assert!(err / scale < 1e-5, "{level:?}: {err} of {scale}");
         }
     }
+}
+
+/// The largest absolute difference of `got` from `want`, and `want`'s largest magnitude
+/// (for tests).
+#[cfg(test)]
+pub(super) fn largest_difference(got: &[f32], want: &[f32]) -> (f32, f32) {
+    assert_eq!(got.len(), want.len());
+    let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
+    let err = got
+        .iter()
+        .zip(want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
+    (err, scale)
 }
 
 /// A point-wise dense layer on the host: `y = act(norm(x w + b))`.

@@ -642,13 +642,7 @@ mod tests {
             let (h, xyz) = (h.inner(), xyz.inner());
             assert!(host::host(&h));
             let got = stack.forward(h, xyz, &Graph::new(&topo, &plain));
-            let (got, want) = (floats(got), floats(want.inner()));
-            let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
-            let err = got
-                .iter()
-                .zip(&want)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f32::max);
+            let (err, scale) = fused::largest_difference(&floats(got), &floats(want.inner()));
             assert!(
                 err / scale < 1e-5,
                 "width {width}, heads {heads}, layer norm {layer_norm}: {err} of {scale}"
