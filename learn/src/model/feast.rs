@@ -219,7 +219,7 @@ struct Operands<'a> {
 pub(super) const HEADS_PER_SWEEP: usize = 4;
 
 /// One rayon task of the forward pass: the output rows from `first` on, `z` holding
-/// `z.len() / (M C)` of them. Run by [`Arch::dispatch`], so the loops compile once per
+/// `z.len() / (M C)` of them. Run at a SIMD [`Level`], so the loops compile once per
 /// SIMD level (AVX-512, AVX2, none) and the CPU's widest runs.
 ///
 /// Per vertex, the head weights of its used slots first; then for each vector-wide column
@@ -327,6 +327,44 @@ pub(super) fn sweep<S: Simd>(
     }
 }
 
+/// A SIMD level to run the host kernels at: the CPU's widest, or one picked (tests).
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Level {
+    Best,
+    #[cfg(test)]
+    Scalar,
+    #[cfg(all(test, target_arch = "x86_64"))]
+    Avx2(pulp::x86::V3),
+    #[cfg(all(test, target_arch = "x86_64"))]
+    Avx512(pulp::x86::V4),
+}
+
+impl Level {
+    pub(super) fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
+        match self {
+            Level::Best => Arch::new().dispatch(op),
+            #[cfg(test)]
+            Level::Scalar => Simd::vectorize(pulp::Scalar::new(), op),
+            #[cfg(all(test, target_arch = "x86_64"))]
+            Level::Avx2(s) => Simd::vectorize(s, op),
+            #[cfg(all(test, target_arch = "x86_64"))]
+            Level::Avx512(s) => Simd::vectorize(s, op),
+        }
+    }
+
+    /// Every level this CPU has, the scalar one first (tests).
+    #[cfg(test)]
+    pub(super) fn all() -> Vec<Level> {
+        let mut levels = vec![Level::Scalar, Level::Best];
+        #[cfg(target_arch = "x86_64")]
+        {
+            levels.extend(pulp::x86::V3::try_new().map(Level::Avx2));
+            levels.extend(pulp::x86::V4::try_new().map(Level::Avx512));
+        }
+        levels
+    }
+}
+
 /// The forward pass on the host.
 ///
 /// # Shapes
@@ -338,17 +376,17 @@ pub fn feast_forward(
     slots: &Slots,
     sizes: [usize; 4],
 ) -> Vec<f32> {
-    forward_with(x, ux, c, slots, sizes, |rows| Arch::new().dispatch(rows))
+    forward_with(Level::Best, x, ux, c, slots, sizes)
 }
 
-/// [`feast_forward`], each task run by `run` (tests pick the SIMD level).
+/// [`feast_forward`] at `level`.
 fn forward_with(
+    level: Level,
     x: &[f32],
     ux: &[f32],
     c: &[f32],
     slots: &Slots,
     [b, n, ch, m]: [usize; 4],
-    run: impl Fn(ForwardRows) + Sync,
 ) -> Vec<f32> {
     let pq = head_factors(ux, c, m);
     let ops = Operands {
@@ -364,7 +402,7 @@ fn forward_with(
         .enumerate()
         .for_each(|(t, z)| {
             let first = t * VERTICES_PER_TASK;
-            run(ForwardRows { first, z, ops });
+            level.run(ForwardRows { first, z, ops });
         });
     z
 }
@@ -387,20 +425,18 @@ pub fn feast_backward(
     slots: &Slots,
     sizes: [usize; 4],
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
-    backward_with(x, ux, c, gz, slots, sizes, |item| {
-        Arch::new().dispatch(item)
-    })
+    backward_with(Level::Best, x, ux, c, gz, slots, sizes)
 }
 
-/// [`feast_backward`], each batch item run by `run` (tests pick the SIMD level).
+/// [`feast_backward`] at `level`.
 fn backward_with(
+    level: Level,
     x: &[f32],
     ux: &[f32],
     c: &[f32],
     gz: &[f32],
     slots: &Slots,
     [b, n, ch, m]: [usize; 4],
-    run: impl Fn(BackwardItem) -> Vec<f32> + Sync,
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let pq = head_factors(ux, c, m);
     let ops = Operands {
@@ -418,7 +454,7 @@ fn backward_with(
         .zip(gux.par_chunks_mut(n * m))
         .enumerate()
         .map(|(item, (gx, gux))| {
-            run(BackwardItem {
+            level.run(BackwardItem {
                 item,
                 gz,
                 gx,
@@ -437,7 +473,7 @@ fn backward_with(
 }
 
 /// One batch item's backward pass (see [`feast_backward`]), its vertices in turn; returns
-/// the item's share of c's gradient. Run by [`Arch::dispatch`] as [`ForwardRows`].
+/// the item's share of c's gradient. Run at a [`Level`] as [`ForwardRows`].
 struct BackwardItem<'a> {
     item: usize,
     gz: &'a [f32],
@@ -819,8 +855,7 @@ mod tests {
     /// not fill whole sweeps of [`super::HEADS_PER_SWEEP`].
     #[test]
     fn every_simd_level_gives_the_per_slot_sums_and_their_gradients() {
-        use super::{Slots, backward_with, forward_with, weights};
-        use pulp::{Scalar, Simd};
+        use super::{Level, Slots, backward_with, forward_with, weights};
         use rand::{Rng, SeedableRng};
 
         let topo = grid();
@@ -895,24 +930,10 @@ mod tests {
                     close("d ux", &bux, &gux);
                     levels += 1;
                 };
-            let s = Scalar::new();
-            check(
-                &|| forward_with(&x, &ux, &c, slots, sizes, |r| Simd::vectorize(s, r)),
-                &|| backward_with(&x, &ux, &c, &gz, slots, sizes, |r| Simd::vectorize(s, r)),
-            );
-            #[cfg(target_arch = "x86_64")]
-            if let Some(s) = pulp::x86::V3::try_new() {
-                check(
-                    &|| forward_with(&x, &ux, &c, slots, sizes, |r| Simd::vectorize(s, r)),
-                    &|| backward_with(&x, &ux, &c, &gz, slots, sizes, |r| Simd::vectorize(s, r)),
-                );
-            }
-            #[cfg(target_arch = "x86_64")]
-            if let Some(s) = pulp::x86::V4::try_new() {
-                check(
-                    &|| forward_with(&x, &ux, &c, slots, sizes, |r| Simd::vectorize(s, r)),
-                    &|| backward_with(&x, &ux, &c, &gz, slots, sizes, |r| Simd::vectorize(s, r)),
-                );
+            for level in Level::all() {
+                check(&|| forward_with(level, &x, &ux, &c, slots, sizes), &|| {
+                    backward_with(level, &x, &ux, &c, &gz, slots, sizes)
+                });
             }
         }
         assert!(

@@ -14,10 +14,10 @@
 //! operations, and a test checks this path against them, with and without layer
 //! normalisation.
 
-use pulp::{Arch, Simd, WithSimd};
+use pulp::{Simd, WithSimd};
 use rayon::prelude::*;
 
-use super::feast::{HEADS_PER_SWEEP, Slots, dot, head_factors, sweep, weights_factored};
+use super::feast::{HEADS_PER_SWEEP, Level, Slots, dot, head_factors, sweep, weights_factored};
 
 /// Vertices per rayon task: the scratch tile of their sums, `64 x M (C + 3)` floats (52 KB
 /// at the CPU widths), stays in the core's cache.
@@ -76,32 +76,6 @@ pub fn residual_stack(
     shape: StackShape,
 ) -> Vec<f32> {
     stack_at(Level::Best, h, xyz, blocks, slots, inv_degree, shape)
-}
-
-/// A SIMD level to run the kernels at: the CPU's widest, or one picked (tests).
-#[derive(Debug, Clone, Copy)]
-enum Level {
-    Best,
-    #[cfg(test)]
-    Scalar,
-    #[cfg(all(test, target_arch = "x86_64"))]
-    Avx2(pulp::x86::V3),
-    #[cfg(all(test, target_arch = "x86_64"))]
-    Avx512(pulp::x86::V4),
-}
-
-impl Level {
-    fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
-        match self {
-            Level::Best => Arch::new().dispatch(op),
-            #[cfg(test)]
-            Level::Scalar => Simd::vectorize(pulp::Scalar::new(), op),
-            #[cfg(all(test, target_arch = "x86_64"))]
-            Level::Avx2(s) => Simd::vectorize(s, op),
-            #[cfg(all(test, target_arch = "x86_64"))]
-            Level::Avx512(s) => Simd::vectorize(s, op),
-        }
-    }
 }
 
 /// [`residual_stack`] at `level`.
@@ -185,7 +159,7 @@ fn stack_at(
 }
 
 /// The head logits of a task's rows: `o[r, h] = xs[r] . ut[h]`, `ut` `[M, C_in]`. Run
-/// by [`Arch::dispatch`] as [`BlockRows`].
+/// at a SIMD [`Level`] as [`BlockRows`].
 struct Logits<'a> {
     o: &'a mut [f32],
     xs: &'a [f32],
@@ -230,8 +204,8 @@ fn grow(v: &mut Vec<f32>, len: usize) {
 }
 
 /// One task of a block: output rows `first..` (each `[h', xyz]`, `out` holding
-/// `out.len() / (O + 3)` of them). Run by [`Arch::dispatch`] so the loops compile once
-/// per SIMD level and the CPU's widest runs.
+/// `out.len() / (O + 3)` of them). Run at a SIMD [`Level`]: the loops compile once per
+/// level, and outside tests the CPU's widest runs.
 struct BlockRows<'a> {
     first: usize,
     out: &'a mut [f32],
@@ -411,17 +385,6 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    /// The best level and each level this CPU has besides the scalar one.
-    fn levels() -> Vec<Level> {
-        let mut levels = vec![Level::Best];
-        #[cfg(target_arch = "x86_64")]
-        {
-            levels.extend(pulp::x86::V3::try_new().map(Level::Avx2));
-            levels.extend(pulp::x86::V4::try_new().map(Level::Avx512));
-        }
-        levels
-    }
-
     /// Every SIMD level this CPU has gives the scalar level's stack, for widths whose
     /// outputs fill whole vector blocks, leave a part vector, or fill none, head counts in
     /// and out of whole sweeps, with and without layer normalisation, and a vertex count
@@ -477,7 +440,7 @@ mod tests {
             let run = |level| stack_at(level, &h, &xyz, &blocks, &slots, &inv_degree, shape);
             let want = run(Level::Scalar);
             assert_eq!(want.len(), b * n * width);
-            for level in levels() {
+            for level in Level::all() {
                 let (err, scale) = largest_difference(&run(level), &want);
                 assert!(
                     err / scale < 1e-5,
@@ -547,7 +510,7 @@ mod tests {
         for (a, e) in want[..3].iter().zip(&x) {
             assert!((a - e).abs() <= 1e-5 * (1.0 + e.abs()), "{a} against {e}");
         }
-        for level in levels() {
+        for level in Level::all() {
             let (err, scale) = largest_difference(&run(level), &want);
             assert!(err / scale < 1e-5, "{level:?}: {err} of {scale}");
         }

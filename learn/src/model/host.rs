@@ -31,8 +31,12 @@ pub const fn cpu_build() -> bool {
     cfg!(not(any(feature = "cuda", feature = "wgpu")))
 }
 
-fn floats<const D: usize>(x: Tensor<D>) -> Vec<f32> {
-    x.into_data().try_into_vec::<f32>().expect("f32 tensor")
+/// A tensor's values on the host, flattened.
+pub(super) fn floats<const D: usize>(x: Tensor<D>) -> Vec<f32> {
+    x.into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("f32 tensor")
 }
 
 fn indices(x: &Tensor<1, Int>) -> Vec<usize> {

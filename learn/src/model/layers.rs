@@ -31,19 +31,11 @@ pub fn maybe_norm(on: bool, width: usize, device: &Device) -> Option<LayerNorm> 
     })
 }
 
-/// A tensor's values on the host, flattened.
-pub(super) fn host_floats<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("f32 data")
-}
-
 /// A layer normalisation's gamma, beta (zeros when it has none) and epsilon on the host.
 pub(super) fn host_norm(n: &LayerNorm) -> (Vec<f32>, Vec<f32>, f32) {
-    let gamma = host_floats(n.gamma.val());
+    let gamma = host::floats(n.gamma.val());
     let beta = match &n.beta {
-        Some(b) => host_floats(b.val()),
+        Some(b) => host::floats(b.val()),
         None => vec![0.0; gamma.len()],
     };
     (gamma, beta, NORM_EPSILON as f32)
@@ -51,13 +43,13 @@ pub(super) fn host_norm(n: &LayerNorm) -> (Vec<f32>, Vec<f32>, f32) {
 
 /// A linear layer (and the normalisation and activation after it) on the host.
 pub(super) fn host_dense(l: &Linear, norm: Option<&LayerNorm>, leaky: bool) -> HostDense {
-    let w = host_floats(l.weight.val());
+    let w = host::floats(l.weight.val());
     let out = l.weight.val().dims()[1];
     HostDense {
         w,
         b: l.bias
             .as_ref()
-            .map_or_else(|| vec![0.0; out], |b| host_floats(b.val())),
+            .map_or_else(|| vec![0.0; out], |b| host::floats(b.val())),
         norm: norm.map(host_norm),
         leaky,
     }
@@ -178,8 +170,8 @@ impl SplitLinear {
             .iter()
             .map(|l| {
                 (
-                    host_floats(l.weight.val()),
-                    l.bias.as_ref().map(|b| host_floats(b.val())),
+                    host::floats(l.weight.val()),
+                    l.bias.as_ref().map(|b| host::floats(b.val())),
                 )
             })
             .collect()
@@ -334,10 +326,10 @@ impl FeaStConv {
     /// the host, for [`super::fused::residual_stack`].
     pub(super) fn host_block(&self, norm: Option<&LayerNorm>) -> HostBlock {
         HostBlock {
-            u: host_floats(self.u.weight.val()),
-            c: host_floats(self.c.val()),
-            w: host_floats(self.lin.weight.val()),
-            bias: host_floats(self.bias.val()),
+            u: host::floats(self.u.weight.val()),
+            c: host::floats(self.c.val()),
+            w: host::floats(self.lin.weight.val()),
+            bias: host::floats(self.bias.val()),
             norm: norm.map(host_norm),
         }
     }

@@ -180,12 +180,6 @@ impl ConvStack {
     fn forward_host(&self, h: Tensor<3>, xyz: Tensor<3>, g: &Graph) -> Tensor<3> {
         let [b, n, width] = h.dims();
         let device = h.device();
-        let floats = |t: Tensor<3>| {
-            t.into_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .expect("f32 data")
-        };
         let blocks: Vec<fused::HostBlock> = self
             .blocks
             .iter()
@@ -193,8 +187,8 @@ impl ConvStack {
             .map(|(i, conv)| conv.host_block(self.norms.get(i)))
             .collect();
         let out = fused::residual_stack(
-            &floats(h),
-            &floats(xyz),
+            &host::floats(h),
+            &host::floats(xyz),
             &blocks,
             &g.host_slots,
             &g.host_inv_degree,
@@ -475,7 +469,7 @@ impl GarNet {
         let (mut parts, mut stacked) = (Vec::new(), Vec::new());
         for (t, (w, bias)) in fused.into_iter().zip(maps) {
             let [_, rows, d] = t.dims();
-            let v = layers::host_floats(t);
+            let v = host::floats(t);
             if let Some(bias) = bias {
                 for row in constant.chunks_exact_mut(f0) {
                     for (o, c) in row.iter_mut().zip(&bias) {
@@ -498,7 +492,7 @@ impl GarNet {
         }
         let first = fused::HostDense {
             w: stacked,
-            b: vec![0.0; f0],
+            b: Vec::new(), // the per-drape `constant` is its bias
             norm: self.fusion_in_norm.as_ref().map(layers::host_norm),
             leaky: true,
         };
