@@ -1,17 +1,15 @@
 //! From dataset rows to network inputs: root-relative coordinates, the body point subset
-//! with normals, the k-NN indices of GarNet-Local (kiddo), and the pushed-out body points
+//! with normals, the k-NN indices of GarNet-Local ([`crate::nearest`]), and the pushed-out body points
 //! that L_pen compares against.
-
-use std::num::NonZero;
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use dataset::shard::{Row, Static};
 use glam::Vec3;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use rayon::prelude::*;
 
 use crate::config::{ModelConfig, Variant};
 use crate::model::Input;
+pub use crate::nearest::{knn, nearest};
+use crate::nearest::{knn_along, spatial_order};
 use sim::mesh::vertex_normals;
 
 use crate::topology::{farthest_point_subset, mean_edge_length};
@@ -58,6 +56,10 @@ pub struct Preprocessor {
     pub body_subset: Vec<u32>,
     /// Positions within `body_subset` of the downsampled points (GarNet-Local).
     pub local_subset: Vec<u32>,
+    /// The order the k-NN searches visit the downsampled points and the garment vertices in
+    /// ([`crate::nearest::spatial_order`] of the canonical body's and the template's).
+    local_order: Vec<u32>,
+    garment_order: Vec<u32>,
     push_out: f32,
     /// L_RQ neighbourhood size found on each target (0: none).
     rq_k: usize,
@@ -73,12 +75,15 @@ impl Preprocessor {
         let body_subset = farthest_point_subset(canon, config.body_points);
         let sub: Vec<Vec3> = body_subset.iter().map(|&i| canon[i as usize]).collect();
         let local_subset = farthest_point_subset(&sub, config.local_points());
+        let down: Vec<Vec3> = local_subset.iter().map(|&i| sub[i as usize]).collect();
         let push_out = push_out_share as f32 * mean_edge_length(canon, &statics.body_triangles);
         Self {
             config: config.clone(),
             body_triangles: statics.body_triangles.clone(),
             body_subset,
             local_subset,
+            local_order: spatial_order(&down),
+            garment_order: spatial_order(&statics.garment_vertices),
             push_out,
             rq_k,
             prior: None,
@@ -126,8 +131,12 @@ impl Preprocessor {
         }
         let (pool, local) = if self.config.variant == Variant::Local {
             let down: Vec<Vec3> = self.local_subset.iter().map(|&i| sub[i as usize]).collect();
-            let pool = knn(&sub, &down, self.config.local_pool_k);
-            let local = knn(&down, &warped, self.config.local_k);
+            let pool = knn_along(&sub, &down, &self.local_order, self.config.local_pool_k);
+            let local = if warped.len() == self.garment_order.len() {
+                knn_along(&down, &warped, &self.garment_order, self.config.local_k)
+            } else {
+                knn(&down, &warped, self.config.local_k)
+            };
             (pool, local)
         } else {
             (Vec::new(), Vec::new())
@@ -202,30 +211,6 @@ pub fn row_params(row: &Row) -> Vec<f32> {
     body_params(&row.shape, &row.pose)
 }
 
-/// For each query, the indices of its `k` nearest points (nearest first). The queries run
-/// in parallel, 256 or more to a task (at batch 1 GarNet-Local's two searches were a tenth
-/// of a drape's time on one thread, docs/bench.md); the result does not depend on the
-/// thread count.
-pub fn knn(points: &[Vec3], queries: &[Vec3], k: usize) -> Vec<u32> {
-    let entries: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
-    let tree = ImmutableKdTree::new_from_slice(&entries).expect("a non-empty point set");
-    let k = NonZero::new(k.min(points.len())).expect("k >= 1");
-    let mut out = vec![0u32; queries.len() * k.get()];
-    out.par_chunks_mut(k.get())
-        .zip(queries.par_iter())
-        .with_min_len(256)
-        .for_each(|(o, q)| {
-            let found = tree
-                .query(&q.to_array())
-                .nearest_n::<SquaredEuclidean<f32>>(k)
-                .execute();
-            for (slot, r) in o.iter_mut().zip(found.iter()) {
-                *slot = r.item as u32;
-            }
-        });
-    out
-}
-
 /// [`Prepared::offsets`]: for each garment vertex x, its closest body vertex p (normal n),
 /// `[(p - x) / scale, n, n . (x - p) / scale]`.
 pub fn body_offsets(body: &[Vec3], normals: &[Vec3], garment: &[Vec3], scale: f32) -> Vec<f32> {
@@ -239,11 +224,6 @@ pub fn body_offsets(body: &[Vec3], normals: &[Vec3], garment: &[Vec3], scale: f3
             [d.x, d.y, d.z, n.x, n.y, n.z, -n.dot(d)]
         })
         .collect()
-}
-
-/// For each query, the index of its nearest point.
-pub fn nearest(points: &[Vec3], queries: &[Vec3]) -> Vec<u32> {
-    knn(points, queries, 1)
 }
 
 /// A batch on a device: the network input and, for training, the target.
@@ -334,46 +314,5 @@ mod tests {
             close(&o[7..], &[-1.0, 3.0, 0.0, 0.0, 1.0, 0.0, -3.0]),
             "{o:?}"
         );
-    }
-
-    /// The k-d tree's k nearest, searched in parallel, are a brute-force search's: the
-    /// same sets, nearest first, for more queries than one task takes.
-    #[test]
-    fn knn_is_brute_force_nearest_first() {
-        let mut state = 12345u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
-        let points: Vec<Vec3> = (0..700)
-            .map(|_| Vec3::new(next(), next(), next()))
-            .collect();
-        let queries: Vec<Vec3> = (0..1500)
-            .map(|_| Vec3::new(next(), next(), next()))
-            .collect();
-        let k = 15;
-        let got = knn(&points, &queries, k);
-        assert_eq!(got.len(), queries.len() * k);
-        for (q, found) in queries.iter().zip(got.chunks_exact(k)) {
-            let mut d: Vec<(f32, u32)> = points
-                .iter()
-                .enumerate()
-                .map(|(i, p)| (p.distance_squared(*q), i as u32))
-                .collect();
-            d.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let dist = |i: u32| points[i as usize].distance_squared(*q);
-            // Nearest first, and the k-th distance is the brute force's k-th.
-            assert!(found.windows(2).all(|w| dist(w[0]) <= dist(w[1])));
-            assert_eq!(dist(found[k - 1]), d[k - 1].0);
-            let mut a: Vec<u32> = found.to_vec();
-            let mut b: Vec<u32> = d[..k].iter().map(|x| x.1).collect();
-            a.sort_unstable();
-            b.sort_unstable();
-            assert_eq!(a, b);
-        }
-        // More neighbours asked than points: all of them.
-        assert_eq!(knn(&points[..5], &queries[..3], 8).len(), 3 * 5);
     }
 }

@@ -8,7 +8,8 @@
 //! - [`kernel`]: that map plus an RBF kernel ridge regression of what it leaves: a baseline,
 //!   the learning curve's map, and a prior.
 //! - [`prior`]: the prior under a network, cross-fitted by body for the training samples.
-//! - [`data`]: dataset rows to network inputs (k-NN with kiddo).
+//! - [`data`]: dataset rows to network inputs.
+//! - [`nearest`]: the k-NN searches of those inputs (a k-d tree, a SIMD scan).
 //! - [`topology`]: the garment's mesh graph.
 //! - [`config`]: model and training configs (`configs/train/*.toml`).
 #![warn(missing_docs)]
@@ -20,6 +21,7 @@ pub mod kernel;
 pub mod linear;
 pub mod loss;
 pub mod model;
+pub mod nearest;
 pub mod predict;
 pub mod prior;
 pub mod run;

@@ -329,7 +329,7 @@ pub(super) fn sweep<S: Simd>(
 
 /// A SIMD level to run the host kernels at: the CPU's widest, or one picked (tests).
 #[derive(Debug, Clone, Copy)]
-pub(super) enum Level {
+pub(crate) enum Level {
     Best,
     #[cfg(test)]
     Scalar,
@@ -340,7 +340,7 @@ pub(super) enum Level {
 }
 
 impl Level {
-    pub(super) fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
+    pub(crate) fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
         match self {
             Level::Best => Arch::new().dispatch(op),
             #[cfg(test)]
@@ -354,7 +354,7 @@ impl Level {
 
     /// Every level this CPU has, the scalar one first (tests).
     #[cfg(test)]
-    pub(super) fn all() -> Vec<Level> {
+    pub(crate) fn all() -> Vec<Level> {
         let mut levels = vec![Level::Scalar, Level::Best];
         #[cfg(target_arch = "x86_64")]
         {
