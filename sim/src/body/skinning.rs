@@ -2,6 +2,7 @@
 //! quaternion skinning (DQS) for any mesh bound to the skeleton (the garment warp).
 
 use glam::{Mat3, Quat, Vec3};
+use rayon::prelude::*;
 
 /// A rotation followed by a translation: `p -> rot * p + trans`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -85,8 +86,9 @@ pub fn lbs(points: &[Vec3], skin: &SkinWeights, transforms: &[Rigid]) -> Vec<Vec
         .map(|t| (Mat3::from_quat(t.rot), t.trans))
         .collect();
     points
-        .iter()
-        .zip(skin.bones.iter().zip(&skin.weights))
+        .par_iter()
+        .zip(skin.bones.par_iter().zip(&skin.weights))
+        .with_min_len(DQS_POINTS_PER_TASK)
         .map(|(&p, (b, w))| {
             let mut m = Mat3::ZERO;
             let mut t = Vec3::ZERO;
@@ -136,6 +138,9 @@ impl DualQuat {
     }
 }
 
+/// Points per task of [`dqs`] (each a few hundred operations).
+const DQS_POINTS_PER_TASK: usize = 2048;
+
 /// Dual quaternion skinning (Kavan et al. 2007): blends the bones' dual quaternions with
 /// the vertex weights (flipping each to the hemisphere of the vertex's first bone), then
 /// applies the normalised blend. Keeps volume at twisting joints where LBS collapses.
@@ -147,8 +152,9 @@ pub fn dqs(points: &[Vec3], skin: &SkinWeights, transforms: &[Rigid]) -> Vec<Vec
     );
     let dqs: Vec<DualQuat> = transforms.iter().map(DualQuat::from_rigid).collect();
     points
-        .iter()
-        .zip(skin.bones.iter().zip(&skin.weights))
+        .par_iter()
+        .zip(skin.bones.par_iter().zip(&skin.weights))
+        .with_min_len(DQS_POINTS_PER_TASK)
         .map(|(&p, (b, w))| {
             let pivot = dqs[b[0] as usize].real;
             let mut real = Quat::from_xyzw(0.0, 0.0, 0.0, 0.0);

@@ -10,6 +10,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use glam::Vec3;
+use rayon::prelude::*;
 use safetensors::tensor::{Dtype, SafeTensors};
 use serde::{Deserialize, Serialize};
 
@@ -115,6 +116,9 @@ struct TargetMove {
 /// difference (float rounding) moves no vertex by more than this, since averaging never
 /// makes a field larger.
 const RESHAPE_RESIDUAL: f32 = 1e-6;
+
+/// Template vertices per task of the shape targets' sum in [`Template::reshape`].
+const RESHAPE_CHUNK: usize = 2048;
 
 fn f32s(v: impl IntoIterator<Item = f32>) -> Vec<u8> {
     v.into_iter().flat_map(f32::to_le_bytes).collect()
@@ -376,17 +380,31 @@ impl Template {
                 .collect();
             let needed: Vec<usize> = active.iter().map(|&(t, _)| t).collect();
             self.make_target_moves(model, &needed);
-            for (t, d) in active {
-                let m = slots[t].get().expect("made above");
-                for ((s, r), (&ms, &mb)) in moves
-                    .iter_mut()
-                    .zip(residual.iter_mut())
-                    .zip(m.smoothed.iter().zip(&m.bound))
-                {
-                    *s += d * ms;
-                    *r -= d * mb;
-                }
-            }
+            let made: Vec<(&TargetMove, f32)> = active
+                .iter()
+                .map(|&(t, d)| (slots[t].get().expect("made above"), d))
+                .collect();
+            // In parallel over the vertices, each summing the targets in order (the same
+            // bits as one thread): the sum reads two vectors per vertex and target, and on
+            // one thread was most of a 10k warp (docs/bench.md, "The local search as a scan").
+            moves
+                .par_chunks_mut(RESHAPE_CHUNK)
+                .zip(residual.par_chunks_mut(RESHAPE_CHUNK))
+                .enumerate()
+                .for_each(|(c, (moves, residual))| {
+                    let first = c * RESHAPE_CHUNK;
+                    for &(m, d) in &made {
+                        let range = first..first + moves.len();
+                        for ((s, r), (&ms, &mb)) in moves
+                            .iter_mut()
+                            .zip(residual.iter_mut())
+                            .zip(m.smoothed[range.clone()].iter().zip(&m.bound[range]))
+                        {
+                            *s += d * ms;
+                            *r -= d * mb;
+                        }
+                    }
+                });
         }
         // What the targets do not explain (a body not made by `BodyModel::shape`) is
         // smoothed as it is.
