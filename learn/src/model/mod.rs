@@ -18,7 +18,7 @@ use layers::{leaky, maybe_norm, normed};
 
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, Linear, LinearConfig};
-use burn::tensor::{Device, Int, Tensor};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 
 use crate::config::{ModelConfig, Variant};
 
@@ -200,7 +200,7 @@ impl ConvStack {
                 slope: self.slope as f32,
             },
         );
-        Tensor::from_data(burn::tensor::TensorData::new(out, [b, n, width]), &device)
+        Tensor::from_data(TensorData::new(out, [b, n, width]), &device)
     }
 }
 
@@ -409,14 +409,19 @@ impl GarNet {
             Some(o) => Tensor::cat(vec![encoded, o.clone()], 2), // [B, N, 3 + ... + 7]
             None => encoded,
         };
-        let point = self.garment_mlp.forward(encoded); // [B, N, Cg]
-        let h0 = leaky(
-            normed(
-                self.conv_in_norm.as_ref(),
-                self.conv_in.forward(vec![point.clone(), global.clone()]),
-            ),
-            self.slope,
-        ); // [B, N, C]
+        let (point, h0) = if host::host(&encoded) {
+            self.garment_in_host(encoded, global.clone())
+        } else {
+            let point = self.garment_mlp.forward(encoded); // [B, N, Cg]
+            let h0 = leaky(
+                normed(
+                    self.conv_in_norm.as_ref(),
+                    self.conv_in.forward(vec![point.clone(), global.clone()]),
+                ),
+                self.slope,
+            ); // [B, N, C]
+            (point, h0)
+        };
         let patch = match &self.convs {
             Some(convs) => convs.forward(h0, xyz, g), // [B, N, C]
             None => h0,
@@ -453,6 +458,50 @@ impl GarNet {
         self.out.forward(self.fusion.forward(f)) // [B, N, 3]
     }
 
+    /// The garment stream's point-wise layers without autodiff on the CPU backends: the
+    /// garment MLP and `conv_in` on its output and the global body feature, each in
+    /// [`fused::pointwise_head`] (at batch 1 and 10k vertices burn's operations took 0.9
+    /// ms for their 0.1 GFLOPs; docs/bench.md, "The local search as a scan").
+    ///
+    /// # Shapes
+    /// `encoded`: `[B, N, D]`, `global`: `[B, 1, G]` -> (`[B, N, Cg]`, `[B, N, C]`).
+    fn garment_in_host(&self, encoded: Tensor<3>, global: Tensor<3>) -> (Tensor<3>, Tensor<3>) {
+        let [b, n, d] = encoded.dims();
+        let device = encoded.device();
+        let slope = self.slope as f32;
+        let mut layers = self.garment_mlp.host_layers();
+        let mut first = layers.remove(0);
+        // The first layer's bias is the same for every drape.
+        let constant: Vec<f32> = (0..b).flat_map(|_| first.b.iter().copied()).collect();
+        first.b = Vec::new();
+        let point = fused::pointwise_head(
+            &[(&host::floats(encoded), d)],
+            &constant,
+            &first,
+            &layers,
+            (b, n),
+            slope,
+        );
+        let cg = point.len() / (b * n);
+        let point = Tensor::from_data(TensorData::new(point, [b, n, cg]), &device);
+        let (parts, stacked, constant) =
+            split_inputs(vec![point.clone(), global], self.conv_in.host_maps(), b, n);
+        let conv_in = fused::HostDense {
+            w: stacked,
+            b: Vec::new(),
+            norm: self.conv_in_norm.as_ref().map(layers::host_norm),
+            leaky: true,
+        };
+        let part_refs: Vec<(&[f32], usize)> =
+            parts.iter().map(|(v, d)| (v.as_slice(), *d)).collect();
+        let h0 = fused::pointwise_head(&part_refs, &constant, &conv_in, &[], (b, n), slope);
+        let c = h0.len() / (b * n);
+        (
+            point,
+            Tensor::from_data(TensorData::new(h0, [b, n, c]), &device),
+        )
+    }
+
     /// The fusion head without autodiff on the CPU backends
     /// ([`fused::pointwise_head`]): the per-drape inputs' products (the global garment and
     /// body features) and the bias made once per drape, the per-vertex inputs through all
@@ -464,32 +513,7 @@ impl GarNet {
         let [b, n, _] = fused[0].dims();
         let device = fused[0].device();
         let maps = self.fusion_in.host_maps();
-        let f0 = maps[0].0.len() / fused[0].dims()[2];
-        let mut constant = vec![0.0f32; b * f0];
-        let (mut parts, mut stacked) = (Vec::new(), Vec::new());
-        for (t, (w, bias)) in fused.into_iter().zip(maps) {
-            let [_, rows, d] = t.dims();
-            let v = host::floats(t);
-            if let Some(bias) = bias {
-                for row in constant.chunks_exact_mut(f0) {
-                    for (o, c) in row.iter_mut().zip(&bias) {
-                        *o += c;
-                    }
-                }
-            }
-            if rows == n {
-                parts.push((v, d));
-                stacked.extend(w);
-            } else {
-                for (s, row) in constant.chunks_exact_mut(f0).enumerate() {
-                    for (e, &x) in v[s * d..(s + 1) * d].iter().enumerate() {
-                        for (o, &wv) in row.iter_mut().zip(&w[e * f0..(e + 1) * f0]) {
-                            *o += x * wv;
-                        }
-                    }
-                }
-            }
-        }
+        let (parts, stacked, constant) = split_inputs(fused, maps, b, n);
         let first = fused::HostDense {
             w: stacked,
             b: Vec::new(), // the per-drape `constant` is its bias
@@ -508,8 +532,47 @@ impl GarNet {
             (b, n),
             self.slope as f32,
         );
-        Tensor::from_data(burn::tensor::TensorData::new(out, [b, n, 3]), &device)
+        Tensor::from_data(TensorData::new(out, [b, n, 3]), &device)
     }
+}
+
+/// A split layer's inputs on the host ([`SplitLinear::host_maps`] `maps`, one per input):
+/// the per-vertex inputs (`[B, N, d_k]`) with their maps stacked `[sum d_k, F]`, and one row
+/// per drape (`[B, F]`) of the bias plus the broadcast inputs' (`[B, 1, d_k]`) products.
+#[allow(clippy::type_complexity)]
+fn split_inputs(
+    inputs: Vec<Tensor<3>>,
+    maps: Vec<(Vec<f32>, Option<Vec<f32>>)>,
+    b: usize,
+    n: usize,
+) -> (Vec<(Vec<f32>, usize)>, Vec<f32>, Vec<f32>) {
+    let f0 = maps[0].0.len() / inputs[0].dims()[2];
+    let mut constant = vec![0.0f32; b * f0];
+    let (mut parts, mut stacked) = (Vec::new(), Vec::new());
+    for (t, (w, bias)) in inputs.into_iter().zip(maps) {
+        let [_, rows, d] = t.dims();
+        let v = host::floats(t);
+        if let Some(bias) = bias {
+            for row in constant.chunks_exact_mut(f0) {
+                for (o, c) in row.iter_mut().zip(&bias) {
+                    *o += c;
+                }
+            }
+        }
+        if rows == n {
+            parts.push((v, d));
+            stacked.extend(w);
+        } else {
+            for (s, row) in constant.chunks_exact_mut(f0).enumerate() {
+                for (e, &x) in v[s * d..(s + 1) * d].iter().enumerate() {
+                    for (o, &wv) in row.iter_mut().zip(&w[e * f0..(e + 1) * f0]) {
+                        *o += x * wv;
+                    }
+                }
+            }
+        }
+    }
+    (parts, stacked, constant)
 }
 
 /// Floating-point operations of one forward pass for one sample (a multiply-add counts
