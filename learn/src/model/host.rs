@@ -76,12 +76,7 @@ pub fn max_axis1(x: Tensor<3>) -> Tensor<3> {
     let device = x.device();
     let v = floats(x);
     let mut out = vec![0.0f32; a * c];
-    let reduce = |rows: &[f32], o: &mut [f32]| {
-        o.copy_from_slice(&rows[..c]);
-        for r in rows[c..].chunks_exact(c) {
-            max_into(o, r);
-        }
-    };
+    let reduce = |rows: &[f32], out: &mut [f32]| Level::Best.run(RowsMax { rows, out });
     if a >= rayon::current_num_threads() || k < 2 * ROWS_PER_TASK {
         out.par_chunks_mut(c)
             .zip(v.par_chunks(k * c))
@@ -147,6 +142,51 @@ fn gathered_maxima(level: Level, table: &[f32], rows: &[usize], k: usize, l: usi
     out
 }
 
+/// [`max_into`] on vector lanes: take y where y > m, or where y is NaN and m is not.
+#[inline(always)]
+fn nan_max<S: Simd>(simd: S, m: S::f32s, y: S::f32s) -> S::f32s {
+    let take = simd.or_m32s(
+        simd.greater_than_f32s(y, m),
+        simd.and_m32s(simd.not_m32s(simd.equal_f32s(y, y)), simd.equal_f32s(m, m)),
+    );
+    simd.select_f32s(take, y, m)
+}
+
+/// [`max_axis1`]'s reduction of consecutive rows (`[K, C]`) into `out` (`[C]`) in vector
+/// registers, a block of the columns at a time.
+struct RowsMax<'a> {
+    rows: &'a [f32],
+    out: &'a mut [f32],
+}
+
+impl WithSimd for RowsMax<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let RowsMax { rows, out } = self;
+        let c = out.len();
+        let (blocks, tail) = S::as_mut_simd_f32s(out);
+        for (v, ov) in blocks.iter_mut().enumerate() {
+            let mut it = rows.chunks_exact(c);
+            let mut m = S::as_simd_f32s(it.next().expect("a row")).0[v];
+            for r in it {
+                m = nan_max(simd, m, S::as_simd_f32s(r).0[v]);
+            }
+            *ov = m;
+        }
+        if !tail.is_empty() {
+            let first = c - tail.len();
+            let mut it = rows.chunks_exact(c);
+            let mut m = simd.partial_load_f32s(&it.next().expect("a row")[first..]);
+            for r in it {
+                m = nan_max(simd, m, simd.partial_load_f32s(&r[first..]));
+            }
+            simd.partial_store_f32s(tail, m);
+        }
+    }
+}
+
 /// [`gather_max`]'s loop for some queries in vector registers: per query and vector-wide
 /// block of the features, the maximum over its `k` rows as [`max_into`] takes it (with the
 /// baseline x86-64 target `max_into` ran four lanes at a time, and its loop's set-up per
@@ -173,14 +213,7 @@ impl WithSimd for GatherMax<'_> {
         } = self;
         let l = out.len() / (rows.len() / k);
         let lanes = S::F32_LANES;
-        // The NaN-keeping maximum: take y where y > m, or where y is NaN and m is not.
-        let max = |m: S::f32s, y: S::f32s| {
-            let take = simd.or_m32s(
-                simd.greater_than_f32s(y, m),
-                simd.and_m32s(simd.not_m32s(simd.equal_f32s(y, y)), simd.equal_f32s(m, m)),
-            );
-            simd.select_f32s(take, y, m)
-        };
+        let max = |m, y| nan_max(simd, m, y);
         for (o, rows) in out.chunks_exact_mut(l).zip(rows.chunks_exact(k)) {
             let row = |r: usize| &table[r * l..(r + 1) * l];
             let (blocks, tail) = S::as_mut_simd_f32s(o);
@@ -271,7 +304,8 @@ mod tests {
     }
 
     /// At every SIMD level, for a width that is no whole number of vectors, the gathered
-    /// maxima are [`max_into`]'s, bit for bit, NaNs kept.
+    /// maxima and the maxima over consecutive rows are [`max_into`]'s, bit for bit, NaNs
+    /// kept.
     #[test]
     fn gathered_maxima_are_the_scalar_loops_at_every_simd_level() {
         let (rows, k, q) = (50, 7, 600);
@@ -290,9 +324,23 @@ mod tests {
                 }
             }
             assert!(want.iter().any(|v| v.is_nan()), "the test reaches a NaN");
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             for level in Level::all() {
                 let got = gathered_maxima(level, &table, &idx, k, l);
-                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got), bits(&want), "width {l}, {level:?}");
+            }
+            // So are the maxima over consecutive rows (max_axis1's).
+            let mut want = table[..l].to_vec();
+            for r in table[l..].chunks_exact(l) {
+                max_into(&mut want, r);
+            }
+            assert!(want.iter().any(|v| v.is_nan()));
+            for level in Level::all() {
+                let mut got = vec![0.0f32; l];
+                level.run(RowsMax {
+                    rows: &table,
+                    out: &mut got,
+                });
                 assert_eq!(bits(&got), bits(&want), "width {l}, {level:?}");
             }
         }
