@@ -74,7 +74,13 @@ pub fn max_axis1(x: Tensor<3>) -> Tensor<3> {
     }
     let [a, k, c] = x.dims();
     let device = x.device();
-    let v = floats(x);
+    let out = row_maxima(&floats(x), [a, k, c]);
+    Tensor::from_data(TensorData::new(out, [a, 1, c]), &device)
+}
+
+/// [`max_axis1`] on the host: `v` `[A, K, C]` -> `[A, C]`.
+pub(super) fn row_maxima(v: &[f32], [a, k, c]: [usize; 3]) -> Vec<f32> {
+    assert_eq!(v.len(), a * k * c, "[A, K, C] values");
     let mut out = vec![0.0f32; a * c];
     let reduce = |rows: &[f32], out: &mut [f32]| Level::Best.run(RowsMax { rows, out });
     if a >= rayon::current_num_threads() || k < 2 * ROWS_PER_TASK {
@@ -102,7 +108,7 @@ pub fn max_axis1(x: Tensor<3>) -> Tensor<3> {
             }
         }
     }
-    Tensor::from_data(TensorData::new(out, [a, 1, c]), &device)
+    out
 }
 
 /// `table.select(0, index).reshape([Q, K, L]).max_dim(1)`: for each of Q queries the

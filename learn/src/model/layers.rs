@@ -115,6 +115,11 @@ impl Mlp {
         }
     }
 
+    /// The leaky ReLU's negative slope.
+    pub(super) fn slope(&self) -> f64 {
+        self.slope
+    }
+
     /// The layers on the host ([`super::fused::pointwise_head`]).
     pub(super) fn host_layers(&self) -> Vec<HostDense> {
         self.layers

@@ -113,6 +113,9 @@ impl BodyStream {
     /// # Shapes
     /// `[B, P, 6]` -> (point-wise `[B, P, C_p]`, global `[B, G]`).
     pub fn forward(&self, x: Tensor<3>) -> (Tensor<3>, Tensor<2>) {
+        if host::host(&x) {
+            return self.forward_host(x);
+        }
         let [b, p, _] = x.dims();
         let t = self.stn.forward(x.clone()); // [B, 3, 3]
         let xyz = x.clone().slice([0..b, 0..p, 0..3]).matmul(t.clone()); // [B, P, 3]
@@ -124,6 +127,70 @@ impl BodyStream {
         let gd = g.dims()[2];
         (point, host::max_axis1(g).reshape([b, gd]))
     }
+
+    /// [`BodyStream::forward`] without autodiff on the CPU backends: each MLP in
+    /// [`fused::pointwise_head`], the maxima and the transform on the host (at batch 1 burn's
+    /// operations took 2.0 ms for the stream's 0.35 GFLOPs over 2,000 points; docs/bench.md,
+    /// "The local search as a scan").
+    fn forward_host(&self, x: Tensor<3>) -> (Tensor<3>, Tensor<2>) {
+        let [b, p, _] = x.dims();
+        let device = x.device();
+        let x = host::floats(x);
+        // The spatial transformer: its point-wise MLP, max-pooled, then its small head on
+        // burn.
+        let h = mlp_host(&self.stn.mlp, &[(&x, 6)], (b, p));
+        let c = h.len() / (b * p);
+        let g = host::row_maxima(&h, [b, p, c]);
+        let g = Tensor::<2>::from_data(TensorData::new(g, [b, c]), &device);
+        let t = host::floats(self.stn.out.forward(self.stn.head.forward(g))); // [B, 9]
+        // The points and normals through T + I.
+        let mut xt = vec![0.0f32; b * p * 6];
+        for (s, (xs, ts)) in x
+            .chunks_exact(p * 6)
+            .zip(xt.chunks_exact_mut(p * 6))
+            .enumerate()
+        {
+            let m = &t[s * 9..(s + 1) * 9];
+            let e = |i: usize, j: usize| m[i * 3 + j] + if i == j { 1.0 } else { 0.0 };
+            for (xr, tr) in xs.chunks_exact(3).zip(ts.chunks_exact_mut(3)) {
+                for (j, o) in tr.iter_mut().enumerate() {
+                    *o = xr[0] * e(0, j) + xr[1] * e(1, j) + xr[2] * e(2, j);
+                }
+            }
+        }
+        let f1 = mlp_host(&self.mlp1, &[(&xt, 6)], (b, p));
+        let c1 = f1.len() / (b * p);
+        let point = mlp_host(&self.mlp2_point, &[(&f1, c1), (&xt, 6)], (b, p));
+        let cp = point.len() / (b * p);
+        let g = mlp_host(&self.mlp2_global, &[(&point, cp)], (b, p));
+        let gd = g.len() / (b * p);
+        let global = host::row_maxima(&g, [b, p, gd]);
+        (
+            Tensor::from_data(TensorData::new(point, [b, p, cp]), &device),
+            Tensor::from_data(TensorData::new(global, [b, gd]), &device),
+        )
+    }
+}
+
+/// `mlp` on the concatenation of `parts` (each `[B, N, d_k]`, in the order of the first
+/// layer's input) in [`fused::pointwise_head`]: all its layers per tile of vertices.
+///
+/// # Shapes
+/// -> `[B, N, output]` (flattened).
+fn mlp_host(mlp: &Mlp, parts: &[(&[f32], usize)], (b, n): (usize, usize)) -> Vec<f32> {
+    let mut layers = mlp.host_layers();
+    let mut first = layers.remove(0);
+    // The first layer's bias is the same for every drape: it is pointwise_head's constant.
+    let constant: Vec<f32> = (0..b).flat_map(|_| first.b.iter().copied()).collect();
+    first.b = Vec::new();
+    fused::pointwise_head(
+        parts,
+        &constant,
+        &first,
+        &layers,
+        (b, n),
+        mlp.slope() as f32,
+    )
 }
 
 /// The garment stream's mesh convolutions: `blocks` residual FeaStNet blocks, the input xyz
@@ -469,19 +536,7 @@ impl GarNet {
         let [b, n, d] = encoded.dims();
         let device = encoded.device();
         let slope = self.slope as f32;
-        let mut layers = self.garment_mlp.host_layers();
-        let mut first = layers.remove(0);
-        // The first layer's bias is the same for every drape.
-        let constant: Vec<f32> = (0..b).flat_map(|_| first.b.iter().copied()).collect();
-        first.b = Vec::new();
-        let point = fused::pointwise_head(
-            &[(&host::floats(encoded), d)],
-            &constant,
-            &first,
-            &layers,
-            (b, n),
-            slope,
-        );
+        let point = mlp_host(&self.garment_mlp, &[(&host::floats(encoded), d)], (b, n));
         let cg = point.len() / (b * n);
         let point = Tensor::from_data(TensorData::new(point, [b, n, cg]), &device);
         let (parts, stacked, constant) =
