@@ -27,14 +27,18 @@ const QUERIES_PER_TASK: usize = 256;
 const TREE_QUERIES_PER_TASK: usize = 64;
 
 /// Point sets up to this size are scanned, larger ones go to the k-d tree. At 200 points
-/// and 15 neighbours the scan takes a quarter of the tree's time, at 2,000 points and 16
-/// neighbours the tree is faster (docs/bench.md, "The local search as a scan").
+/// and 15 neighbours the scan along a Z-order curve takes about a third of the tree's
+/// time, at 2,000 points and 16 neighbours the tree is faster (docs/bench.md, "The local
+/// search as a scan"); this size sits between the two measured.
 pub const SCAN_POINTS: usize = 512;
 
 /// For each query, the indices of its `k` nearest points (nearest first; all points when
-/// there are fewer than `k`). The queries run in parallel, a few hundred to a task; the result does not depend on the thread count. Up to [`SCAN_POINTS`] points are
-/// scanned ([`knn_scan`]), more searched in a k-d tree ([`knn_tree`]); both give the same
-/// sets, and the same order but for points at the same distance.
+/// there are fewer than `k`). The queries run in parallel, tens to hundreds to a task; the
+/// result does not depend on the thread count. Up to [`SCAN_POINTS`] points are scanned
+/// ([`knn_scan`]), more searched in a k-d tree ([`knn_tree`]). The scan's squared distances
+/// are glam's (`(dx dx + dy dy) + dz dz`, unfused); the tree's may round differently, so
+/// the two can differ where two points are at the same distance to within a rounding.
+/// Points with a NaN coordinate are never found but to fill k.
 pub fn knn(points: &[Vec3], queries: &[Vec3], k: usize) -> Vec<u32> {
     if points.len() <= SCAN_POINTS {
         knn_scan(points, queries, k)
@@ -128,6 +132,13 @@ pub(crate) fn knn_scan_with(
     let visit = match order {
         Some(order) => {
             assert_eq!(order.len(), queries.len(), "an order of every query");
+            let mut seen = vec![false; queries.len()];
+            for &q in order {
+                assert!(
+                    !std::mem::replace(&mut seen[q as usize], true),
+                    "query {q} twice in the order"
+                );
+            }
             order
         }
         None => {
@@ -163,7 +174,8 @@ pub(crate) fn knn_scan_with(
 }
 
 /// The points' coordinates in three arrays, padded to a whole number of the widest vectors
-/// with points at infinity (never within a bound).
+/// with points at infinity: never within a finite bound, and behind every real point at an
+/// infinite one (ties go to the lower index).
 struct Coords {
     x: Vec<f32>,
     y: Vec<f32>,
@@ -188,11 +200,13 @@ impl Coords {
         }
     }
 
-    /// Squared distance from point `j` to `q`, as the scan's vectors compute it.
+    /// Squared distance from point `j` to `q`, as the scan's vectors compute it (and glam),
+    /// a NaN taken as infinity so that such a point is the first to leave the list.
     #[inline(always)]
     fn distance_squared(&self, j: usize, q: Vec3) -> f32 {
         let (dx, dy, dz) = (self.x[j] - q.x, self.y[j] - q.y, self.z[j] - q.z);
-        dz.mul_add(dz, dy.mul_add(dy, dx * dx))
+        let d = (dx * dx + dy * dy) + dz * dz;
+        if d.is_nan() { f32::INFINITY } else { d }
     }
 }
 
@@ -249,8 +263,12 @@ impl WithSimd for Scan<'_> {
                     simd.sub_f32s(y, qy),
                     simd.sub_f32s(z, qz),
                 );
-                let d =
-                    simd.mul_add_e_f32s(dz, dz, simd.mul_add_e_f32s(dy, dy, simd.mul_f32s(dx, dx)));
+                // Unfused, as glam and `Coords::distance_squared`: the same bits at every
+                // SIMD level. A NaN fails the comparison below.
+                let d = simd.add_f32s(
+                    simd.add_f32s(simd.mul_f32s(dx, dx), simd.mul_f32s(dy, dy)),
+                    simd.mul_f32s(dz, dz),
+                );
                 let mut bits = mask_bits::<S>(simd.less_than_or_equal_f32s(d, bound));
                 if bits == 0 {
                     continue;
@@ -412,6 +430,78 @@ mod tests {
                 assert_eq!(s.len(), 6, "{found:?}");
             }
             check(&points, &queries, 6, &got);
+        }
+    }
+
+    /// Visited along a Z-order curve, each query's neighbours land in its own place: the
+    /// same lists as visiting the queries in their order, at every SIMD level.
+    #[test]
+    fn knn_along_puts_each_querys_neighbours_in_its_place() {
+        let points = cloud(21, 200);
+        let queries = cloud(22, 3000);
+        let order = spatial_order(&queries);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..3000).collect::<Vec<u32>>(), "a permutation");
+        // Consecutive queries along the curve are closer than in storage order.
+        let gap = |o: &[u32]| -> f32 {
+            o.windows(2)
+                .map(|w| queries[w[0] as usize].distance(queries[w[1] as usize]))
+                .sum()
+        };
+        let stored: Vec<u32> = (0..3000).collect();
+        assert!(gap(&order) < 0.2 * gap(&stored));
+        for level in Level::all() {
+            let plain = knn_scan_with(level, &points, &queries, None, 15);
+            let along = knn_scan_with(level, &points, &queries, Some(&order), 15);
+            assert_eq!(plain, along, "{level:?}");
+            check(&points, &queries, 15, &along);
+        }
+        assert_eq!(
+            knn_along(&points, &queries, &order, 15),
+            knn_scan(&points, &queries, 15)
+        );
+        // Fewer than k queries, and none.
+        assert_eq!(knn_along(&points, &queries[..2], &[1, 0], 15).len(), 30);
+        assert!(knn_along(&points, &[], &[], 15).is_empty());
+    }
+
+    #[test]
+    #[should_panic(expected = "twice in the order")]
+    fn an_order_that_repeats_a_query_is_refused() {
+        let points = cloud(23, 20);
+        let queries = cloud(24, 3);
+        knn_along(&points, &queries, &[0, 0, 2], 4);
+    }
+
+    /// Points with a NaN coordinate (of either sign) are never among the neighbours while
+    /// there are enough others, wherever they stand (as the first k, which seed the first
+    /// query's list), and fill the list last when there are not.
+    #[test]
+    fn points_with_nan_are_found_only_to_fill_k() {
+        let mut points = cloud(25, 60);
+        points[0].x = f32::NAN;
+        points[3].y = -f32::NAN;
+        points[40].z = f32::NAN;
+        let finite: Vec<u32> = (0..60).filter(|i| ![0, 3, 40].contains(i)).collect();
+        let queries = cloud(26, 400);
+        for level in Level::all() {
+            let got = knn_scan_with(level, &points, &queries, None, 15);
+            for (q, found) in queries.iter().zip(got.chunks_exact(15)) {
+                let mut want: Vec<(f32, u32)> = finite
+                    .iter()
+                    .map(|&i| (points[i as usize].distance_squared(*q), i))
+                    .collect();
+                want.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                let want: Vec<u32> = want[..15].iter().map(|x| x.1).collect();
+                assert_eq!(found, &want[..], "{level:?}");
+            }
+            let all = knn_scan_with(level, &points, &queries[..5], None, 60);
+            for found in all.chunks_exact(60) {
+                let mut tail = found[57..].to_vec();
+                tail.sort_unstable();
+                assert_eq!(tail, [0, 3, 40], "{level:?}");
+            }
         }
     }
 

@@ -319,8 +319,14 @@ mod tests {
             let mut table: Vec<f32> = (0..rows * l)
                 .map(|e| ((e * 7919) % 997) as f32 / 97.0 - 5.0)
                 .collect();
-            table[3 * l + 1] = f32::NAN;
+            // Two NaN payloads in one column (the first seen stays) and both zeros in
+            // another (of equal values the first stays).
+            table[3 * l + 1] = f32::from_bits(0x7fc0_0001);
+            table[4 * l + 1] = f32::from_bits(0xffc0_0002);
             table[10 * l + l - 1] = f32::NAN;
+            for r in 0..rows {
+                table[r * l + 2] = if r % 2 == 0 { -0.0 } else { 0.0 };
+            }
             let idx: Vec<usize> = (0..q * k).map(|i| (i * 31 + i / 7) % rows).collect();
             let mut want = vec![0.0f32; q * l];
             for (o, r) in want.chunks_exact_mut(l).zip(idx.chunks_exact(k)) {

@@ -113,7 +113,7 @@ impl BodyStream {
     /// # Shapes
     /// `[B, P, 6]` -> (point-wise `[B, P, C_p]`, global `[B, G]`).
     pub fn forward(&self, x: Tensor<3>) -> (Tensor<3>, Tensor<2>) {
-        if host::host(&x) {
+        if host::host(&x) && x.dims()[0] * x.dims()[1] > 0 {
             return self.forward_host(x);
         }
         let [b, p, _] = x.dims();
@@ -476,7 +476,7 @@ impl GarNet {
             Some(o) => Tensor::cat(vec![encoded, o.clone()], 2), // [B, N, 3 + ... + 7]
             None => encoded,
         };
-        let (point, h0) = if host::host(&encoded) {
+        let (point, h0) = if host::host(&encoded) && b * n > 0 {
             self.garment_in_host(encoded, global.clone())
         } else {
             let point = self.garment_mlp.forward(encoded); // [B, N, Cg]

@@ -88,7 +88,7 @@ pub fn lbs(points: &[Vec3], skin: &SkinWeights, transforms: &[Rigid]) -> Vec<Vec
     points
         .par_iter()
         .zip(skin.bones.par_iter().zip(&skin.weights))
-        .with_min_len(DQS_POINTS_PER_TASK)
+        .with_min_len(SKIN_POINTS_PER_TASK)
         .map(|(&p, (b, w))| {
             let mut m = Mat3::ZERO;
             let mut t = Vec3::ZERO;
@@ -138,8 +138,9 @@ impl DualQuat {
     }
 }
 
-/// Points per task of [`dqs`] (each a few hundred operations).
-const DQS_POINTS_PER_TASK: usize = 2048;
+/// Points per task of [`lbs`] and [`dqs`] (each a few hundred operations; the same bits as
+/// one thread, as each point is its own).
+const SKIN_POINTS_PER_TASK: usize = 2048;
 
 /// Dual quaternion skinning (Kavan et al. 2007): blends the bones' dual quaternions with
 /// the vertex weights (flipping each to the hemisphere of the vertex's first bone), then
@@ -154,7 +155,7 @@ pub fn dqs(points: &[Vec3], skin: &SkinWeights, transforms: &[Rigid]) -> Vec<Vec
     points
         .par_iter()
         .zip(skin.bones.par_iter().zip(&skin.weights))
-        .with_min_len(DQS_POINTS_PER_TASK)
+        .with_min_len(SKIN_POINTS_PER_TASK)
         .map(|(&p, (b, w))| {
             let pivot = dqs[b[0] as usize].real;
             let mut real = Quat::from_xyzw(0.0, 0.0, 0.0, 0.0);
