@@ -243,11 +243,56 @@ fn bench_predict(
                 );
             }
         }
+        if variants.contains(&learn::config::Variant::Local) {
+            local_search(&base.model, &statics, &samples[0].0, &samples[0].3, repeats);
+        }
     }
     if let Some(mb) = peak_memory_mb() {
         println!("peak memory: {mb:.0} MB");
     }
     Ok(())
+}
+
+/// GarNet-Local's local k-NN search on one drape (each garment vertex's `local_k` nearest
+/// downsampled body points) three ways, medians of `repeats` after a warm-up: kiddo's k-d
+/// tree, the scan with the vertices in their stored order, and the scan along the
+/// template's Z-order curve as the inputs run it (docs/bench.md, "The local search as a
+/// scan").
+fn local_search(
+    model: &learn::config::ModelConfig,
+    statics: &dataset::shard::Static,
+    body: &[glam::Vec3],
+    warped: &[glam::Vec3],
+    repeats: usize,
+) {
+    use learn::nearest::{knn_along, knn_scan, knn_tree, spatial_order};
+    let pre = learn::data::Preprocessor::new(statics, model, 0.0, 0);
+    let down: Vec<glam::Vec3> = pre
+        .local_subset
+        .iter()
+        .map(|&i| body[pre.body_subset[i as usize] as usize])
+        .collect();
+    let order = spatial_order(&statics.garment_vertices);
+    let k = model.local_k;
+    let time = |f: &dyn Fn() -> Vec<u32>| {
+        let runs: Vec<f64> = (0..=repeats)
+            .map(|_| {
+                let t0 = std::time::Instant::now();
+                std::hint::black_box(f());
+                t0.elapsed().as_secs_f64()
+            })
+            .skip(1)
+            .collect();
+        median(runs) * 1e3
+    };
+    let tree = time(&|| knn_tree(&down, warped, k));
+    let stored = time(&|| knn_scan(&down, warped, k));
+    let along = time(&|| knn_along(&down, warped, &order, k));
+    println!(
+        "{} vertices: GarNet-Local's local search (each vertex's {k} nearest of {} body points, one drape): k-d tree {tree:.2} ms, scan in stored order {stored:.2} ms, scan along the template's Z-order curve {along:.2} ms",
+        warped.len(),
+        down.len()
+    );
 }
 
 /// `drape bench speedup`.
