@@ -730,6 +730,16 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         .collect();
     // vertices, batch, warp, inputs, network ms/b, network ms/s, ms/drape, GFLOPs, GFLOP/s
     assert_eq!(row.len(), 9, "{text}");
+    // With GarNet-Local, its local search three ways: the tree and two scans, each timed.
+    let search = text
+        .lines()
+        .find(|l| l.starts_with("2967 vertices: GarNet-Local's local search"))
+        .unwrap_or_else(|| panic!("{text}"));
+    let ms: Vec<f64> = search
+        .split(" ms")
+        .filter_map(|p| p.rsplit(' ').next()?.parse().ok())
+        .collect();
+    assert!(ms.len() == 3 && ms.iter().all(|&t| t > 0.0), "{search}");
     assert_eq!((row[0], row[1]), (2967.0, 1.0), "{text}");
     // Sampled bodies, so the warp reshapes (its shape moves made once, beforehand).
     assert!(row[2] > 0.0, "{text}");
