@@ -470,6 +470,29 @@ fn holds_drapes(dir: &Path) -> bool {
     })
 }
 
+/// How far the generation of `config` into `dir` has come, without locking the folder (a
+/// running `drape gen` may hold it): the drapes finished (those of shards with a record
+/// and those waiting in `partial/`, converged or not) and the dataset's total. Counts
+/// files only; a partial drape written by another config is not told apart.
+pub fn drapes_done(config: &DatasetConfig, dir: &Path) -> (usize, usize) {
+    let all = shards(config);
+    let total = all.iter().map(|s| s.samples.len()).sum();
+    let done = all
+        .iter()
+        .map(|s| {
+            if record_path(dir, &s.file).is_file() && dir.join(&s.file).is_file() {
+                s.samples.len()
+            } else {
+                s.samples
+                    .iter()
+                    .filter(|&&id| partial_path(dir, id).is_file())
+                    .count()
+            }
+        })
+        .sum();
+    (done, total)
+}
+
 /// Runs (or resumes) the generation of `config` into `dir`.
 pub fn generate(
     config: &DatasetConfig,
@@ -719,4 +742,34 @@ pub fn generate(
         draped_now,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn drapes_done_counts_recorded_shards_and_partial_drapes() {
+        let c = DatasetConfig::load("tiny").unwrap();
+        let all = shards(&c);
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        // 4 bodies x 2 poses; an empty folder or none at all: nothing done.
+        assert_eq!(drapes_done(&c, dir), (0, 8));
+        assert_eq!(drapes_done(&c, &dir.join("none")), (0, 8));
+        std::fs::create_dir_all(dir.join("partial")).unwrap();
+        std::fs::create_dir_all(dir.join("records")).unwrap();
+        // The first train shard finished (its record and its file), one drape of the
+        // second waiting in partial/.
+        let (first, second) = (&all[0], &all[1]);
+        assert_eq!(first.samples.len(), 3);
+        std::fs::write(dir.join(&first.file), b"").unwrap();
+        std::fs::write(record_path(dir, &first.file), b"{}").unwrap();
+        std::fs::write(partial_path(dir, second.samples[0]), b"").unwrap();
+        assert_eq!(drapes_done(&c, dir), (4, 8));
+        // A record without its shard is not a finished shard; its drapes are not in
+        // partial/ any more, so they count as not done.
+        std::fs::remove_file(dir.join(&first.file)).unwrap();
+        assert_eq!(drapes_done(&c, dir), (1, 8));
+    }
 }

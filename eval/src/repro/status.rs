@@ -164,13 +164,31 @@ pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> Str
                     let failed: usize = t.values().map(|x| x.failed).sum();
                     format!("done: {n} drapes, {failed} failed")
                 })
+        } else if let Some(hours) = measured(&name) {
+            let dir = out.join("data").join(&d.key);
+            match dataset::config::DatasetConfig::load(&d.config) {
+                // Drapes left at the pace so far (the stage's hours over the drapes made).
+                Ok(c) => match dataset::generate::drapes_done(&c, &dir) {
+                    (n, total) if n > 0 => {
+                        let rest = hours * (total - n.min(total)) as f64 / n as f64;
+                        left += rest;
+                        format!(
+                            "under way: {n} of {total} drapes, about {rest:.2} h left at this pace (resumes)"
+                        )
+                    }
+                    (_, total) => {
+                        left += d.planned_hours;
+                        format!("under way: 0 of {total} drapes (resumes)")
+                    }
+                },
+                Err(_) => {
+                    left += d.planned_hours;
+                    "under way (resumes)".into()
+                }
+            }
         } else {
             left += d.planned_hours;
-            if measured(&name).is_some() {
-                "under way (resumes)".into()
-            } else {
-                "not started".into()
-            }
+            "not started".into()
         };
         writeln!(
             w,
