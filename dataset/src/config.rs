@@ -11,7 +11,7 @@ use crate::DatasetError;
 use crate::sampling::ShapeRanges;
 
 /// The built-in dataset configs, by name.
-pub const BUILT_IN: [(&str, &str); 15] = [
+pub const BUILT_IN: [(&str, &str); 16] = [
     ("tiny", include_str!("../../configs/datasets/tiny.toml")),
     (
         "tiny-heldout",
@@ -49,6 +49,10 @@ pub const BUILT_IN: [(&str, &str); 15] = [
     (
         "cpu-repro-jeans",
         include_str!("../../configs/datasets/cpu-repro-jeans.toml"),
+    ),
+    (
+        "cpu-repro-tshirt-10k",
+        include_str!("../../configs/datasets/cpu-repro-tshirt-10k.toml"),
     ),
     (
         "paper-tshirt",
@@ -403,10 +407,10 @@ mod tests {
         legacy.size_pick = 1;
         assert!(legacy.resolved_json().get("size_pick").is_none());
         assert_ne!(legacy.hash(), sized.hash());
-        // The reproduction's configs pin 1.
-        for g in ["tshirt", "sweater", "dress", "jeans"] {
-            let c = DatasetConfig::load(&format!("cpu-repro-{g}")).unwrap();
-            assert_eq!((c.sizes, c.size_pick), (true, 1));
+        // The reproduction's configs pinned 1 until session 53; its rerun takes the default.
+        for name in ["tshirt", "sweater", "dress", "jeans", "tshirt-10k"] {
+            let c = DatasetConfig::load(&format!("cpu-repro-{name}")).unwrap();
+            assert_eq!((c.sizes, c.size_pick), (true, 2));
         }
         // A manifest in sizes without the field was made with 1; one with it keeps it.
         let manifest = |c: &DatasetConfig| {

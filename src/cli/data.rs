@@ -16,8 +16,8 @@ use super::Context;
 pub struct GenArgs {
     /// Dataset config: a built-in name (tiny, tiny-heldout, small, cpu-reference, cpu-reference-sweater,
     /// cpu-reference-dress, cpu-reference-jeans, cpu-repro-tshirt, cpu-repro-sweater,
-    /// cpu-repro-dress, cpu-repro-jeans, paper-tshirt, paper-sweater, paper-dress,
-    /// paper-jeans) or a TOML file.
+    /// cpu-repro-dress, cpu-repro-jeans, cpu-repro-tshirt-10k, paper-tshirt, paper-sweater,
+    /// paper-dress, paper-jeans) or a TOML file.
     pub config: String,
     /// Output folder (created; running again resumes).
     #[arg(short, long, value_name = "DIR")]
