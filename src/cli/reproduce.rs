@@ -39,6 +39,12 @@ pub struct ReproduceArgs {
     /// and exit; writes nothing, so it can run beside a running `drape reproduce`.
     #[arg(long)]
     status: bool,
+    /// Let `drape gen` resume a dataset that another build of drape began (as `drape gen
+    /// --mixed-builds`: two builds drape differently by up to 15 mm; its manifest then
+    /// records no program). Without it such a dataset stops the plan with an error that
+    /// names the build.
+    #[arg(long)]
+    mixed_builds: bool,
 }
 
 /// A child `drape` running `args` with `threads` worker threads (all cores if `None`).
@@ -153,7 +159,11 @@ impl Drop for Children<'_> {
 }
 
 /// The `drape gen` arguments that make dataset `d` in `dir`, with the plan's failure gate.
-fn gen_args(d: &eval::repro::PlanDataset, dir: &Path) -> Vec<std::ffi::OsString> {
+fn gen_args(
+    d: &eval::repro::PlanDataset,
+    dir: &Path,
+    mixed_builds: bool,
+) -> Vec<std::ffi::OsString> {
     let mut a: Vec<std::ffi::OsString> = vec![
         "gen".into(),
         d.config.clone().into(),
@@ -163,6 +173,9 @@ fn gen_args(d: &eval::repro::PlanDataset, dir: &Path) -> Vec<std::ffi::OsString>
     if let Some(r) = d.max_failure_rate {
         a.push("--max-failure-rate".into());
         a.push(r.to_string().into());
+    }
+    if mixed_builds {
+        a.push("--mixed-builds".into());
     }
     a
 }
@@ -182,9 +195,10 @@ impl<'p> Filler<'p> {
         threads: usize,
         out: &Path,
         clock: &Mutex<Clock>,
+        mixed_builds: bool,
     ) -> anyhow::Result<()> {
         let name = format!("gen {}", d.key);
-        let mut a = gen_args(d, &data_dir(out, &d.key));
+        let mut a = gen_args(d, &data_dir(out, &d.key), mixed_builds);
         a.push("--threads".into());
         a.push(threads.to_string().into());
         let a: Vec<&std::ffi::OsStr> = a.iter().map(|x| x.as_os_str()).collect();
@@ -368,7 +382,7 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         if args.report_only {
             Ok(())
         } else {
-            stages(ctx, &plan, &out, &clock)
+            stages(ctx, &plan, &out, &clock, args.mixed_builds)
         }
     });
     let ledger = clock.into_inner().unwrap_or_else(|e| e.into_inner()).ledger;
@@ -392,7 +406,13 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
 /// for the next dataset; [`eval::repro::split_group`]), `parallel_runs` at once, each
 /// evaluated as it finishes, and the next dataset made on a slot those runs leave free;
 /// then the evaluations left and the speed-ups.
-fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyhow::Result<()> {
+fn stages(
+    ctx: &Context,
+    plan: &Plan,
+    out: &Path,
+    clock: &Mutex<Clock>,
+    mixed_builds: bool,
+) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
     let eval_dir = |key: &str| out.join("eval").join(key);
@@ -456,7 +476,7 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
                 || !eval::repro::record::data_needed(plan, out, &d.key)
         };
         stage(&name, &passed, &manifest, &mut || {
-            let a = gen_args(d, &dir);
+            let a = gen_args(d, &dir, mixed_builds);
             let a: Vec<&std::ffi::OsStr> = a.iter().map(|x| x.as_os_str()).collect();
             child(ctx, &name, &a)
         })?;
@@ -481,7 +501,7 @@ fn stages(ctx: &Context, plan: &Plan, out: &Path, clock: &Mutex<Clock>) -> anyho
                 !data_dir(&n.key).join("manifest.json").exists()
                     && eval::repro::record::data_needed(plan, out, &n.key)
             });
-            train_runs(ctx, plan, &now, fill, out, clock)?;
+            train_runs(ctx, plan, &now, fill, out, clock, mixed_builds)?;
         }
         group = later;
     }
@@ -601,6 +621,7 @@ fn train_runs(
     fill: Option<&eval::repro::PlanDataset>,
     out: &Path,
     clock: &Mutex<Clock>,
+    mixed_builds: bool,
 ) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
@@ -735,7 +756,7 @@ fn train_runs(
         {
             if let Some(d) = fill.take() {
                 let t = threads.unwrap_or(1) * (parallel - running.0.len());
-                filler.start(ctx, d, t, out, clock)?;
+                filler.start(ctx, d, t, out, clock, mixed_builds)?;
             }
         }
         if running.0.is_empty() {
@@ -835,4 +856,34 @@ fn train_runs(
         anyhow::bail!("train {} never became ready to start", r.key);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gen_children_get_the_datasets_gate_and_mixed_builds_only_when_asked() {
+        let d = eval::repro::PlanDataset {
+            key: "sweater".into(),
+            config: "cpu-repro-sweater".into(),
+            planned_hours: 0.4,
+            max_failure_rate: Some(0.08),
+        };
+        let args = |mixed| {
+            gen_args(&d, Path::new("w/data/sweater"), mixed)
+                .iter()
+                .map(|a| a.to_string_lossy().into_owned())
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        assert_eq!(
+            args(false),
+            "gen cpu-repro-sweater -o w/data/sweater --max-failure-rate 0.08"
+        );
+        assert_eq!(
+            args(true),
+            "gen cpu-repro-sweater -o w/data/sweater --max-failure-rate 0.08 --mixed-builds"
+        );
+    }
 }
