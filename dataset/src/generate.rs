@@ -473,8 +473,22 @@ fn holds_drapes(dir: &Path) -> bool {
 /// How far the generation of `config` into `dir` has come, without locking the folder (a
 /// running `drape gen` may hold it): the drapes finished (those of shards with a record
 /// and those waiting in `partial/`, converged or not) and the dataset's total. Counts
-/// files only; a partial drape written by another config is not told apart.
-pub fn drapes_done(config: &DatasetConfig, dir: &Path) -> (usize, usize) {
+/// files only. An error if the folder was started with another config (its `config.json`
+/// names another hash), whose drapes `drape gen` would refuse to resume.
+pub fn drapes_done(config: &DatasetConfig, dir: &Path) -> Result<(usize, usize), DatasetError> {
+    let stamp_path = dir.join("config.json");
+    if let Ok(bytes) = std::fs::read(&stamp_path) {
+        let stamp: Stamp = serde_json::from_slice(&bytes)
+            .map_err(|e| DatasetError::Invalid(format!("{}: {e}", stamp_path.display())))?;
+        if stamp.config_sha256 != config.hash() {
+            return Err(DatasetError::Invalid(format!(
+                "{} holds drapes of another config (sha256 {}, not {})",
+                dir.display(),
+                &stamp.config_sha256[..12.min(stamp.config_sha256.len())],
+                &config.hash()[..12]
+            )));
+        }
+    }
     let all = shards(config);
     let total = all.iter().map(|s| s.samples.len()).sum();
     let done = all
@@ -490,7 +504,7 @@ pub fn drapes_done(config: &DatasetConfig, dir: &Path) -> (usize, usize) {
             }
         })
         .sum();
-    (done, total)
+    Ok((done, total))
 }
 
 /// Runs (or resumes) the generation of `config` into `dir`.
@@ -755,8 +769,8 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path();
         // 4 bodies x 2 poses; an empty folder or none at all: nothing done.
-        assert_eq!(drapes_done(&c, dir), (0, 8));
-        assert_eq!(drapes_done(&c, &dir.join("none")), (0, 8));
+        assert_eq!(drapes_done(&c, dir).unwrap(), (0, 8));
+        assert_eq!(drapes_done(&c, &dir.join("none")).unwrap(), (0, 8));
         std::fs::create_dir_all(dir.join("partial")).unwrap();
         std::fs::create_dir_all(dir.join("records")).unwrap();
         // The first train shard finished (its record and its file), one drape of the
@@ -766,10 +780,31 @@ mod tests {
         std::fs::write(dir.join(&first.file), b"").unwrap();
         std::fs::write(record_path(dir, &first.file), b"{}").unwrap();
         std::fs::write(partial_path(dir, second.samples[0]), b"").unwrap();
-        assert_eq!(drapes_done(&c, dir), (4, 8));
+        assert_eq!(drapes_done(&c, dir).unwrap(), (4, 8));
         // A record without its shard is not a finished shard; its drapes are not in
         // partial/ any more, so they count as not done.
         std::fs::remove_file(dir.join(&first.file)).unwrap();
-        assert_eq!(drapes_done(&c, dir), (1, 8));
+        assert_eq!(drapes_done(&c, dir).unwrap(), (1, 8));
+        // Started with this config: counted; with another: an error naming it.
+        let stamp = |hash: String| {
+            serde_json::to_vec(&Stamp {
+                config_sha256: hash,
+                config: c.resolved_json(),
+                garment_friction: None,
+                garment_substeps: None,
+                garment_below_band: None,
+                garment_crease_contacts: false,
+                program_sha256: None,
+            })
+            .unwrap()
+        };
+        std::fs::write(dir.join("config.json"), stamp(c.hash())).unwrap();
+        assert_eq!(drapes_done(&c, dir).unwrap(), (1, 8));
+        std::fs::write(dir.join("config.json"), stamp("ab".repeat(32))).unwrap();
+        let e = drapes_done(&c, dir).unwrap_err().to_string();
+        assert!(
+            e.contains("holds drapes of another config (sha256 abababababab"),
+            "{e}"
+        );
     }
 }

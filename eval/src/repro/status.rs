@@ -166,24 +166,25 @@ pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> Str
                 })
         } else if let Some(hours) = measured(&name) {
             let dir = out.join("data").join(&d.key);
-            match dataset::config::DatasetConfig::load(&d.config) {
-                // Drapes left at the pace so far (the stage's hours over the drapes made).
-                Ok(c) => match dataset::generate::drapes_done(&c, &dir) {
-                    (n, total) if n > 0 => {
-                        let rest = hours * (total - n.min(total)) as f64 / n as f64;
-                        left += rest;
-                        format!(
-                            "under way: {n} of {total} drapes, about {rest:.2} h left at this pace (resumes)"
-                        )
-                    }
-                    (_, total) => {
-                        left += d.planned_hours;
-                        format!("under way: 0 of {total} drapes (resumes)")
-                    }
-                },
-                Err(_) => {
+            let made = dataset::config::DatasetConfig::load(&d.config)
+                .and_then(|c| dataset::generate::drapes_done(&c, &dir));
+            match made {
+                // Drapes left at the pace so far: the stage's hours over the drapes made
+                // (on all threads or one beside training; a lost machine's hours count).
+                Ok((n, total)) if n > 0 => {
+                    let rest = hours * (total - n.min(total)) as f64 / n as f64;
+                    left += rest;
+                    format!(
+                        "under way: {n} of {total} drapes, about {rest:.2} h left at this pace (resumes)"
+                    )
+                }
+                Ok((_, total)) => {
                     left += d.planned_hours;
-                    "under way (resumes)".into()
+                    format!("under way: 0 of {total} drapes (resumes)")
+                }
+                Err(e) => {
+                    left += d.planned_hours;
+                    format!("under way ({e})")
                 }
             }
         } else {
@@ -374,5 +375,61 @@ mod tests {
         assert_eq!((p.steps, p.steps_per_epoch, p.epochs_done), (1, None, 0));
         assert_eq!(p.projected_hours(), None);
         assert_eq!(p.last_val_cm, None);
+    }
+
+    #[test]
+    fn a_dataset_under_way_shows_its_drapes_and_the_hours_left_at_its_pace() {
+        let plan: Plan = toml::from_str(
+            r#"name = "t"
+budget_hours = 1.0
+eval_planned_hours = 0.1
+runs = []
+[[datasets]]
+key = "tshirt"
+config = "tiny"
+planned_hours = 0.5
+[[datasets]]
+key = "sweater"
+config = "tiny"
+planned_hours = 0.25
+[speedup]
+runs = []
+samples = 1
+"#,
+        )
+        .unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path();
+        let c = dataset::config::DatasetConfig::load("tiny").unwrap();
+        let shards = dataset::plan::shards(&c);
+        // Two of tiny's 8 drapes made in 0.1 h.
+        let partial = out.join("data/tshirt/partial");
+        std::fs::create_dir_all(&partial).unwrap();
+        for id in &shards[0].samples[..2] {
+            std::fs::write(partial.join(format!("{id:08}.safetensors")), b"").unwrap();
+        }
+        let mut ledger = Ledger::default();
+        ledger.seconds.insert("gen tshirt".into(), 360.0);
+        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        assert!(
+            text.contains(
+                "| gen tshirt | 0.50 | 0.10 | under way: 2 of 8 drapes, about 0.30 h left at this pace (resumes) |"
+            ),
+            "{text}"
+        );
+        assert!(
+            text.contains("| gen sweater | 0.25 | – | not started |"),
+            "{text}"
+        );
+        // Left: 0.3 h at the pace, the sweater's 0.25 planned, the evaluation's 0.1.
+        assert!(text.contains("\nabout 0.7 machine hours left"), "{text}");
+        // Under way with nothing made yet: the planned hours count.
+        std::fs::remove_dir_all(&partial).unwrap();
+        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        assert!(
+            text.contains("| under way: 0 of 8 drapes (resumes) |"),
+            "{text}"
+        );
+        assert!(text.contains("\nabout 0.8 machine hours left"), "{text}");
     }
 }

@@ -542,7 +542,7 @@ impl Library {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PickRule {
     /// Before session 26: a size too small counts 4 times, height included. The datasets
-    /// made before then (the reproduction's `cpu-repro-*`) keep it.
+    /// made before then keep it (the reproduction's `cpu-repro-*` did until session 53).
     V1,
     /// Since session 26: a girth too small counts 10 times, a height too small 4 times as
     /// before. Under V1 a heavy woman (hips 1.005 m) wore the dress size whose hips
