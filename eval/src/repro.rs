@@ -1614,6 +1614,23 @@ samples = 1
         assert!(r.paired_edist("a", "missing").is_none());
     }
 
+    /// The reproduction.md that `plan` (validated here) writes before any stage has run.
+    fn report_before_any_stage(plan: &Plan) -> String {
+        plan.validate().unwrap();
+        let (dir, _) = scratch(&plan.name);
+        let out = dir.path().to_path_buf();
+        let docs = out.join("docs");
+        write_report(
+            plan,
+            Path::new("plan.toml"),
+            &out,
+            &Ledger::default(),
+            &docs,
+        )
+        .unwrap();
+        std::fs::read_to_string(docs.join("reproduction.md")).unwrap()
+    }
+
     #[test]
     fn a_plan_without_the_tshirt_points_to_the_claims_and_names_what_it_leaves_out() {
         let plan: Plan = toml::from_str(
@@ -1636,20 +1653,8 @@ samples = 1
 "#,
         )
         .unwrap();
-        plan.validate().unwrap();
         assert_eq!(plan.docs.as_deref(), Some(Path::new("elsewhere")));
-        let (dir, _) = scratch("partial");
-        let out = dir.path().to_path_buf();
-        let docs = out.join("docs");
-        write_report(
-            &plan,
-            Path::new("garments.toml"),
-            &out,
-            &Ledger::default(),
-            &docs,
-        )
-        .unwrap();
-        let md = std::fs::read_to_string(docs.join("reproduction.md")).unwrap();
+        let md = report_before_any_stage(&plan);
         assert!(md.contains("does not train `tshirt-local`"), "{md}");
         assert!(!md.contains("| Local <= Global < Naive"), "{md}");
         // Tables with a sweater GarNet-Local cell are drawn; the T-shirt-only ones (the
@@ -1698,19 +1703,7 @@ samples = 1
 "#,
         )
         .unwrap();
-        plan.validate().unwrap();
-        let (dir, _) = scratch("with-10k");
-        let out = dir.path().to_path_buf();
-        let docs = out.join("docs");
-        write_report(
-            &plan,
-            Path::new("with-10k.toml"),
-            &out,
-            &Ledger::default(),
-            &docs,
-        )
-        .unwrap();
-        let md = std::fs::read_to_string(docs.join("reproduction.md")).unwrap();
+        let md = report_before_any_stage(&plan);
         // Nothing has run: the 10k row is in the claims table, right under the 3k bar,
         // its cells dashes and its verdict open.
         let lines: Vec<&str> = md.lines().collect();
