@@ -892,7 +892,7 @@ fn bodies_wear_the_size_their_measurements_pick() {
     let t = tempfile::tempdir().unwrap();
     let tiny = std::fs::read_to_string("configs/datasets/tiny.toml").unwrap();
     // Without sizes the resolved config has no `sizes` field: older datasets keep their hash
-    // (tests/quickstart.rs pins cpu-reference's against the committed reference).
+    // (dataset/src/config.rs pins cpu-reference's).
     let plain = dataset::config::DatasetConfig::load("tiny").unwrap();
     assert!(plain.resolved_json().get("sizes").is_none());
     let sized_text = tiny.replacen("seed = 1\n", "seed = 1\nsizes = true\n", 1);

@@ -371,6 +371,13 @@ mod tests {
         );
         let c = DatasetConfig::load("cpu-reference").unwrap();
         assert_eq!((c.bodies.train, c.bodies.val, c.bodies.test), (200, 10, 40));
+        // Its hash is pinned: the data the first quick-start weights were trained on (before
+        // session 54) and the reproduction's first pass stay reproducible only while the
+        // resolved config, and so the simulator it pins, is unchanged.
+        assert_eq!(
+            c.hash(),
+            "98a76105adedc77f8d24e8a575410c131789d70ba84e495a08fe6909b2c809c9"
+        );
         assert_eq!(
             (c.garment.as_str(), c.resolution, c.poses_per_body),
             ("tshirt", 3000, 10)
