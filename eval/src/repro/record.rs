@@ -233,21 +233,38 @@ impl Saved {
 }
 
 /// An evaluation's `metrics.json` with its per-sample rows cut to what the report reads:
-/// each sample's id and the network's Edist (to 1e-4 cm), for the paired differences
-/// between runs. The full rows (0.6 MB for 396 T-shirt test samples) stay in the working
-/// folder and its `samples.csv`.
+/// each sample's id, the network's Edist (to 1e-4 cm) for the paired differences between
+/// runs, and its L_MC and L_RQ terms (to 5 significant digits) for the per-drape curvature
+/// ratios under Table 7. The full rows (0.6 MB for 396 T-shirt test samples) stay in the
+/// working folder and its `samples.csv`.
 fn summary_metrics(path: &Path) -> Result<Vec<u8>, EvalError> {
     let bytes = std::fs::read(path).map_err(io(path))?;
     let mut v: serde_json::Value = serde_json::from_slice(&bytes)
         .map_err(|e| EvalError::Invalid(format!("{}: {e}", path.display())))?;
+    let significant = |x: f64| -> f64 { format!("{x:.4e}").parse().unwrap_or(x) };
     if let Some(rows) = v.get_mut("samples").and_then(|s| s.as_array_mut()) {
         for row in rows.iter_mut() {
-            let edist = row["methods"]["network"]["edist_cm"]
-                .as_f64()
-                .map(|e| (e * 1e4).round() / 1e4);
+            let net = &row["methods"]["network"];
+            let mut kept = serde_json::Map::new();
+            kept.insert(
+                "edist_cm".into(),
+                net["edist_cm"]
+                    .as_f64()
+                    .map(|e| (e * 1e4).round() / 1e4)
+                    .into(),
+            );
+            if let Some(mc) = net["l_mc"].as_f64() {
+                kept.insert("l_mc".into(), significant(mc).into());
+            }
+            if let Some(rq) = net["l_rq"].as_array() {
+                let rq: Option<Vec<f64>> = rq.iter().map(|x| x.as_f64().map(significant)).collect();
+                if let Some(rq) = rq {
+                    kept.insert("l_rq".into(), rq.into());
+                }
+            }
             *row = serde_json::json!({
                 "id": row["id"],
-                "methods": {"network": {"edist_cm": edist}},
+                "methods": {"network": kept},
             });
         }
     }
@@ -393,7 +410,7 @@ samples = 2
         std::fs::write(
             d.join("metrics.json"),
             format!(
-                "{{\"run\": \"{key}\", \"samples\": [{{\"id\": 7, \"family\": \"dance\", \"methods\": {{\"dqs\": {{\"edist_cm\": 5.0}}, \"network\": {{\"edist_cm\": 2.123456, \"enorm_deg\": 18.0}}}}}}]}}"
+                "{{\"run\": \"{key}\", \"samples\": [{{\"id\": 7, \"family\": \"dance\", \"methods\": {{\"dqs\": {{\"edist_cm\": 5.0}}, \"network\": {{\"edist_cm\": 2.123456, \"enorm_deg\": 18.0, \"l_mc\": 1234.5678, \"l_rq\": [1.234567e-9, 2.0, 3.0]}}}}}}]}}"
             ),
         )
         .unwrap();
@@ -433,14 +450,14 @@ samples = 2
         // Evaluated: the weights stay while the fine-tune and the speed-up wait for them.
         evaluate(&out, "base");
         assert!(save(&p, &out, &ledger).warnings.is_empty());
-        // The evaluation with each sample's id and network Edist only.
+        // The evaluation with each sample's id and network Edist, L_MC and L_RQ only.
         let m: serde_json::Value =
             serde_json::from_slice(&std::fs::read(rec.join("eval/base/metrics.json")).unwrap())
                 .unwrap();
         assert_eq!(
             m,
             serde_json::json!({"run": "base", "samples": [
-                {"id": 7, "methods": {"network": {"edist_cm": 2.1235}}}
+                {"id": 7, "methods": {"network": {"edist_cm": 2.1235, "l_mc": 1234.6, "l_rq": [1.2346e-9, 2.0, 3.0]}}}
             ]})
         );
         assert!(rb.join("best.bpk").exists());
