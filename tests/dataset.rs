@@ -110,6 +110,12 @@ fn a_dataset_has_its_splits_manifest_and_readable_samples() {
     assert!(text.contains("friction garment-body: 0.3"), "{text}");
     assert!(text.contains("strain polish ("), "{text}");
     assert!(text.contains("p95 strain before it"), "{text}");
+    // Every converged drape is read for its thinnest triangle.
+    let converged: usize = Split::ALL.iter().map(|&s| ds.count(s)).sum();
+    assert!(
+        text.contains("drapes; smallest") && text.contains(&format!("of {converged} drapes")),
+        "{text}"
+    );
     // The DQS baseline of the test split: the mean of its samples' warp-to-drape Edist.
     let edists: Vec<f64> = ds
         .samples(Split::Test)

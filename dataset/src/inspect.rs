@@ -83,6 +83,69 @@ pub struct Info {
     /// Edist between the DQS warp M and the drape G (cm), per sample, of the training and
     /// the test split: the DQS baseline, and how far a network has to move M.
     pub dqs_edist_cm: BTreeMap<Split, Stats>,
+    /// Triangles the drapes crush thin (every split).
+    pub thin: ThinInfo,
+}
+
+/// The angles at which `drape data info` counts a draped triangle as crushed thin.
+pub const THIN_DEG: [f64; 3] = [1.0, 2.0, 5.0];
+
+/// Triangles crushed thin in the drapes: a fold the simulator could not resolve at the
+/// mesh's edge length, where the mean-curvature normal (L_MC) becomes very large.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct ThinInfo {
+    /// Drapes read.
+    pub drapes: usize,
+    /// The template's smallest triangle angle (degrees).
+    pub template_min_deg: f64,
+    /// The smallest triangle angle over all drapes (degrees; 180 when none was read).
+    pub min_deg: f64,
+    /// Per angle of [`THIN_DEG`]: the drapes with a triangle whose smallest angle is below it.
+    pub drapes_below: Vec<(f64, usize)>,
+    /// The most triangles under the largest angle of [`THIN_DEG`] in one drape.
+    pub most_in_a_drape: usize,
+}
+
+/// Smallest interior angle of each triangle (degrees); a degenerate one has 0.
+pub fn triangle_min_angles(x: &[glam::Vec3], triangles: &[[u32; 3]]) -> Vec<f64> {
+    triangles
+        .iter()
+        .map(|t| {
+            let p = t.map(|i| x[i as usize].as_dvec3());
+            (0..3)
+                .map(|k| {
+                    let (a, b, c) = (p[k], p[(k + 1) % 3], p[(k + 2) % 3]);
+                    let (u, v) = (b - a, c - a);
+                    u.cross(v).length().atan2(u.dot(v)).to_degrees()
+                })
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect()
+}
+
+impl ThinInfo {
+    /// From each drape's smallest triangle angles, beside the template's.
+    pub fn of(template_min_deg: f64, drapes: &[Vec<f64>]) -> Self {
+        let smallest: Vec<f64> = drapes
+            .iter()
+            .map(|a| a.iter().copied().fold(180.0, f64::min))
+            .collect();
+        let top = THIN_DEG[THIN_DEG.len() - 1];
+        Self {
+            drapes: drapes.len(),
+            template_min_deg,
+            min_deg: smallest.iter().copied().fold(180.0, f64::min),
+            drapes_below: THIN_DEG
+                .iter()
+                .map(|&d| (d, smallest.iter().filter(|m| **m < d).count()))
+                .collect(),
+            most_in_a_drape: drapes
+                .iter()
+                .map(|a| a.iter().filter(|m| **m < top).count())
+                .max()
+                .unwrap_or(0),
+        }
+    }
 }
 
 /// Mean rotation angle (degrees) between two poses, over bones.
@@ -108,12 +171,16 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
         v.as_f64().unwrap_or(f64::NAN)
     };
     let stat = |path: &[&str]| Stats::of(ok.iter().map(|s| get(s, path)).collect());
-    // Each sample's pose and DQS Edist (cm), one shard in memory at a time.
-    let read = |split: Split| -> Result<(Vec<Vec<Quat>>, Vec<f64>), DatasetError> {
+    // Each sample's pose, DQS Edist (cm) and triangles' smallest angles, one shard in
+    // memory at a time.
+    let triangles = &ds.statics.garment_triangles;
+    let mut angles: Vec<Vec<f64>> = Vec::new();
+    let mut read = |split: Split| -> Result<(Vec<Vec<Quat>>, Vec<f64>), DatasetError> {
         let mut poses = Vec::new();
         let mut dqs = Vec::new();
         for s in ds.samples(split) {
             let row = s?.row;
+            angles.push(triangle_min_angles(&row.draped, triangles));
             let sum: f64 = row
                 .warped
                 .iter()
@@ -126,6 +193,13 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
         Ok((poses, dqs))
     };
     let ((train, train_dqs), (test, test_dqs)) = (read(Split::Train)?, read(Split::Test)?);
+    read(Split::Val)?;
+    let thin = ThinInfo::of(
+        triangle_min_angles(&ds.statics.garment_vertices, triangles)
+            .into_iter()
+            .fold(180.0, f64::min),
+        &angles,
+    );
     let nearest: Vec<f64> = test
         .iter()
         .filter_map(|t| {
@@ -183,7 +257,41 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
             .filter(|(_, v)| !v.is_empty())
             .map(|(s, v)| (s, Stats::of(v)))
             .collect(),
+        thin,
     })
+}
+
+#[cfg(test)]
+mod thin_tests {
+    use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn thin_triangles_are_counted_by_their_smallest_angle() {
+        // A right isosceles triangle (45°), one squashed to a 1.5° sliver, one degenerate.
+        let x = [
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::Y,
+            Vec3::new(0.5, 0.013, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+        ];
+        let a = triangle_min_angles(&x, &[[0, 1, 2], [0, 1, 3], [0, 1, 4]]);
+        assert!((a[0] - 45.0).abs() < 1e-9, "{a:?}");
+        assert!(
+            (a[1] - 0.013f64.atan2(0.5).to_degrees()).abs() < 1e-4,
+            "{a:?}"
+        );
+        assert!(a[1] > 1.0 && a[1] < 2.0, "{a:?}");
+        assert_eq!(a[2], 0.0);
+        // Three drapes: one clean, one with the sliver, one with two triangles under 5°.
+        let t = ThinInfo::of(14.2, &[vec![45.0, 30.0], vec![45.0, 1.5], vec![4.0, 0.5]]);
+        assert_eq!(t.drapes, 3);
+        assert_eq!(t.min_deg, 0.5);
+        assert_eq!(t.drapes_below, vec![(1.0, 1), (2.0, 2), (5.0, 2)]);
+        assert_eq!(t.most_in_a_drape, 2);
+        assert_eq!(ThinInfo::of(14.2, &[]).min_deg, 180.0);
+    }
 }
 
 /// The strain polish's figures over a dataset's converged drapes.

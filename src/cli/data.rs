@@ -701,6 +701,28 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                     " cm",
                 );
             }
+            let t = &i.thin;
+            if t.drapes > 0 {
+                let below: Vec<String> = t
+                    .drapes_below
+                    .iter()
+                    .map(|(deg, n)| {
+                        format!(
+                            "under {deg}° in {n} ({:.1}%)",
+                            100.0 * *n as f64 / t.drapes as f64
+                        )
+                    })
+                    .collect();
+                println!(
+                    "  thin triangles (a drape's smallest triangle angle; the template's {:.1}°): {} of {} drapes; smallest {:.2}°, at most {} under {}° in one drape",
+                    t.template_min_deg,
+                    below.join(", "),
+                    t.drapes,
+                    t.min_deg,
+                    t.most_in_a_drape,
+                    inspect::THIN_DEG[inspect::THIN_DEG.len() - 1]
+                );
+            }
             Ok(())
         }
         DataCommand::Verify { dir } => {
