@@ -407,7 +407,7 @@ pub fn write_report(
         linear_validation_edist_cm: &'a [(f64, f64)],
         kernel: learn::kernel::Picks,
         kernel_validation_edist_cm: &'a [(f64, f64, f64)],
-        samples: &'a [crate::evaluate::SampleEval],
+        samples: &'a [SampleEval],
     }
     let curve_points = |c: &BTreeMap<String, crate::metrics::Curve>| {
         c.iter()
