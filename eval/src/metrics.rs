@@ -84,6 +84,20 @@ pub fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// Median of the values, the mean of the middle pair for an even count (None for none).
+pub fn median_of(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
+
 /// Mean and (population) standard deviation.
 pub fn mean_std(v: &[f64]) -> (f64, f64) {
     if v.is_empty() {
@@ -378,6 +392,13 @@ mod tests {
             Vec3::new(0.0, 0.0, 1.0),
         ];
         (v, vec![[0, 2, 1], [0, 3, 2]])
+    }
+
+    #[test]
+    fn median_of_takes_the_middle_or_the_middle_pairs_mean() {
+        assert_eq!(median_of(vec![3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median_of(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
+        assert_eq!(median_of(vec![]), None);
     }
 
     #[test]

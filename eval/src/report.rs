@@ -96,20 +96,12 @@ fn curvature_weights(samples: &[SampleEval], title: &dyn Fn(&str) -> String) -> 
     let medians: Vec<String> = METHODS
         .iter()
         .filter_map(|m| {
-            let mut v: Vec<f64> = samples
-                .iter()
-                .filter_map(|s| Some(s.methods.get(*m)?.l_mc))
-                .collect();
-            if v.is_empty() {
-                return None;
-            }
-            v.sort_by(f64::total_cmp);
-            let n = v.len();
-            let median = if n % 2 == 1 {
-                v[n / 2]
-            } else {
-                0.5 * (v[n / 2 - 1] + v[n / 2])
-            };
+            let median = crate::metrics::median_of(
+                samples
+                    .iter()
+                    .filter_map(|s| Some(s.methods.get(*m)?.l_mc))
+                    .collect(),
+            )?;
             Some(format!("{} {median:.4e}", title(m)))
         })
         .collect();

@@ -648,21 +648,13 @@ fn curvature_robustness(r: &Results) -> Option<String> {
     ] {
         let cells = |b: &BTreeMap<i64, f64>, field: &str| -> Option<(f64, f64)> {
             let run = r.per_sample(key, field)?;
-            let mut ratios: Vec<f64> = run
+            let ratios: Vec<f64> = run
                 .iter()
                 .filter_map(|(id, x)| b.get(id).filter(|y| **y > 0.0).map(|y| x / y))
                 .collect();
-            if ratios.is_empty() {
-                return None;
-            }
-            ratios.sort_by(f64::total_cmp);
             let n = ratios.len();
-            let median = if n % 2 == 1 {
-                ratios[n / 2]
-            } else {
-                0.5 * (ratios[n / 2 - 1] + ratios[n / 2])
-            };
-            let lower = ratios.iter().filter(|x| **x < 1.0).count() as f64 / n as f64;
+            let lower = ratios.iter().filter(|x| **x < 1.0).count() as f64 / n.max(1) as f64;
+            let median = crate::metrics::median_of(ratios)?;
             Some((median, 100.0 * lower))
         };
         let (Some((m, ml)), Some((q, ql))) = (cells(&mc, "l_mc"), cells(&rq, "l_rq")) else {
