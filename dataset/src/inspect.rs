@@ -12,6 +12,7 @@ use crate::generate::{sha256, write_atomic};
 use crate::manifest::{Manifest, Tally};
 use crate::reader::Dataset;
 use crate::shard::STATIC_FILE;
+use sim::mesh::remesh::min_angles_deg;
 
 /// mean, p95 and max of a list.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
@@ -106,29 +107,12 @@ pub struct ThinInfo {
     pub most_in_a_drape: usize,
 }
 
-/// Smallest interior angle of each triangle (degrees); a degenerate one has 0.
-pub fn triangle_min_angles(x: &[glam::Vec3], triangles: &[[u32; 3]]) -> Vec<f64> {
-    triangles
-        .iter()
-        .map(|t| {
-            let p = t.map(|i| x[i as usize].as_dvec3());
-            (0..3)
-                .map(|k| {
-                    let (a, b, c) = (p[k], p[(k + 1) % 3], p[(k + 2) % 3]);
-                    let (u, v) = (b - a, c - a);
-                    u.cross(v).length().atan2(u.dot(v)).to_degrees()
-                })
-                .fold(f64::INFINITY, f64::min)
-        })
-        .collect()
-}
-
 impl ThinInfo {
     /// From each drape's smallest triangle angles, beside the template's.
-    pub fn of(template_min_deg: f64, drapes: &[Vec<f64>]) -> Self {
+    pub fn of(template_min_deg: f64, drapes: &[Vec<f32>]) -> Self {
         let smallest: Vec<f64> = drapes
             .iter()
-            .map(|a| a.iter().copied().fold(180.0, f64::min))
+            .map(|a| a.iter().map(|&m| f64::from(m)).fold(180.0, f64::min))
             .collect();
         let top = THIN_DEG[THIN_DEG.len() - 1];
         Self {
@@ -141,7 +125,7 @@ impl ThinInfo {
                 .collect(),
             most_in_a_drape: drapes
                 .iter()
-                .map(|a| a.iter().filter(|m| **m < top).count())
+                .map(|a| a.iter().filter(|m| f64::from(**m) < top).count())
                 .max()
                 .unwrap_or(0),
         }
@@ -174,13 +158,13 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
     // Each sample's pose, DQS Edist (cm) and triangles' smallest angles, one shard in
     // memory at a time.
     let triangles = &ds.statics.garment_triangles;
-    let mut angles: Vec<Vec<f64>> = Vec::new();
+    let mut angles: Vec<Vec<f32>> = Vec::new();
     let mut read = |split: Split| -> Result<(Vec<Vec<Quat>>, Vec<f64>), DatasetError> {
         let mut poses = Vec::new();
         let mut dqs = Vec::new();
         for s in ds.samples(split) {
             let row = s?.row;
-            angles.push(triangle_min_angles(&row.draped, triangles));
+            angles.push(min_angles_deg(&row.draped, triangles));
             let sum: f64 = row
                 .warped
                 .iter()
@@ -195,8 +179,9 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
     let ((train, train_dqs), (test, test_dqs)) = (read(Split::Train)?, read(Split::Test)?);
     read(Split::Val)?;
     let thin = ThinInfo::of(
-        triangle_min_angles(&ds.statics.garment_vertices, triangles)
+        min_angles_deg(&ds.statics.garment_vertices, triangles)
             .into_iter()
+            .map(f64::from)
             .fold(180.0, f64::min),
         &angles,
     );
@@ -276,7 +261,10 @@ mod thin_tests {
             Vec3::new(0.5, 0.013, 0.0),
             Vec3::new(2.0, 0.0, 0.0),
         ];
-        let a = triangle_min_angles(&x, &[[0, 1, 2], [0, 1, 3], [0, 1, 4]]);
+        let a: Vec<f64> = min_angles_deg(&x, &[[0, 1, 2], [0, 1, 3], [0, 1, 4]])
+            .into_iter()
+            .map(f64::from)
+            .collect();
         assert!((a[0] - 45.0).abs() < 1e-9, "{a:?}");
         assert!(
             (a[1] - 0.013f64.atan2(0.5).to_degrees()).abs() < 1e-4,

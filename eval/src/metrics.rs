@@ -98,6 +98,20 @@ pub fn median_of(mut v: Vec<f64>) -> Option<f64> {
     })
 }
 
+/// The key of the largest value and that value's share of the sum (percent); None when
+/// there is none or the sum is not positive.
+pub fn largest_share<K: Copy>(v: impl IntoIterator<Item = (K, f64)>) -> Option<(K, f64)> {
+    let (mut total, mut top) = (0.0, None::<(K, f64)>);
+    for (k, x) in v {
+        total += x;
+        if top.is_none_or(|(_, t)| x > t) {
+            top = Some((k, x));
+        }
+    }
+    top.filter(|_| total > 0.0)
+        .map(|(k, x)| (k, 100.0 * x / total))
+}
+
 /// Mean and (population) standard deviation.
 pub fn mean_std(v: &[f64]) -> (f64, f64) {
     if v.is_empty() {

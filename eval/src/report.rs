@@ -83,16 +83,11 @@ pub fn summaries(ev: &Evaluation) -> BTreeMap<String, Summary> {
 /// which no single sample can carry, and the largest sample's share of the network's mean.
 /// None without samples or with a zero mean.
 fn curvature_weights(samples: &[SampleEval], title: &dyn Fn(&str) -> String) -> Option<String> {
-    let network: Vec<(u64, f64)> = samples
-        .iter()
-        .filter_map(|s| Some((s.id, s.methods.get("network")?.l_mc)))
-        .collect();
-    let total: f64 = network.iter().map(|(_, v)| v).sum();
-    let (id, top) = network
-        .iter()
-        .copied()
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .filter(|_| total > 0.0)?;
+    let (id, share) = crate::metrics::largest_share(
+        samples
+            .iter()
+            .filter_map(|s| Some((s.id, s.methods.get("network")?.l_mc))),
+    )?;
     let medians: Vec<String> = METHODS
         .iter()
         .filter_map(|m| {
@@ -108,7 +103,7 @@ fn curvature_weights(samples: &[SampleEval], title: &dyn Fn(&str) -> String) -> 
     Some(format!(
         "Medians over samples of L_MC, which no single sample can carry: {}. The largest sample carries {:.0}% of the network's mean L_MC (sample {id}): L_MC squares the mean-curvature normal, which is very large where a drape crushes a few triangles thin (`drape data info` counts such drapes).",
         medians.join(", "),
-        100.0 * top / total
+        share
     ))
 }
 

@@ -623,11 +623,8 @@ fn curvature_robustness(r: &Results) -> Option<String> {
     use std::fmt::Write as _;
     let base = "tshirt-local";
     let (mc, rq) = (r.per_sample(base, "l_mc")?, r.per_sample(base, "l_rq")?);
-    let largest = |m: &BTreeMap<i64, f64>| {
-        let total: f64 = m.values().sum();
-        let (id, v) = m.iter().max_by(|a, b| a.1.total_cmp(b.1))?;
-        Some((*id, 100.0 * v / total)).filter(|_| total > 0.0)
-    };
+    let largest =
+        |m: &BTreeMap<i64, f64>| crate::metrics::largest_share(m.iter().map(|(k, v)| (*k, *v)));
     let ((mc_id, mc_share), (rq_id, rq_share)) = (largest(&mc)?, largest(&rq)?);
     // One drape out of n holds 100/n% on average: ten times that (or half the mean, for few
     // drapes) is a mean resting on it.
@@ -872,15 +869,17 @@ const TSHIRT_10K: &str = "tshirt-local-10k";
 /// 0.19 to 0.21 cm per doubling); the report's extrapolation to 1 cm uses it.
 const CM_PER_DOUBLING: f64 = 0.2;
 
-/// The machine hours a CPU plan may spend (the evaluation issue's budget).
-const BUDGET_HOURS: f64 = 24.0;
+/// The evaluation issue's bar on GarNet-Local: Edist under 1 cm and Enorm under 12°.
+fn meets_accuracy_bar(edist_cm: f64, enorm_deg: f64) -> bool {
+    edist_cm < 1.0 && enorm_deg < 12.0
+}
 
 /// The paragraphs of "Where a claim does not hold": for each failing claim of the T-shirt
 /// (the ordering of GarNet-Local, -Global and -Naive, and the 1 cm / 12° bar at 3k and at
 /// 10k), what this plan's evaluations show beside it and what earlier sessions measured
 /// about its cause, named as such. Empty when every claim holds or is not measured yet.
-/// `hours_local`: GarNet-Local's (3k) training hours.
-fn shortfalls(r: &Results, hours_local: Option<f64>) -> Vec<String> {
+/// `hours_local`: GarNet-Local's (3k) training hours; `budget_hours`: the plan's budget.
+fn shortfalls(r: &Results, hours_local: Option<f64>, budget_hours: f64) -> Vec<String> {
     let f = |k: &str, m: &str, field: &str| r.figure(k, m, field, false);
     let pair = |a: &str, b: &str, name: &str| {
         r.paired_edist(a, b).map_or(String::new(), |(m, se, n)| {
@@ -928,7 +927,7 @@ fn shortfalls(r: &Results, hours_local: Option<f64>) -> Vec<String> {
             Some((*k, *label, d, a))
         })
         .collect();
-    let meets = |d: f64, a: f64| d < 1.0 && a < 12.0;
+    let meets = meets_accuracy_bar;
     let Some(&(key, label, d, a)) = measured.iter().find(|(_, _, d, a)| !meets(*d, *a)) else {
         return why;
     };
@@ -969,9 +968,9 @@ fn shortfalls(r: &Results, hours_local: Option<f64>) -> Vec<String> {
                 " At that rate 1 cm is {doublings:.1} doublings from {d:.2} cm, about {times:.0} times this training"
             );
             match hours_local.filter(|_| key == "tshirt-local") {
-                Some(h) if times * h > BUDGET_HOURS => {
+                Some(h) if times * h > budget_hours => {
                     text += &format!(
-                        " (about {:.0} machine hours against this run's {h:.2}): an extrapolation, not a measurement, and beyond the {BUDGET_HOURS:.0} machine hours a CPU plan may spend.",
+                        " (about {:.0} machine hours against this run's {h:.2}): an extrapolation, not a measurement, and beyond the {budget_hours:.0} machine hours this plan may spend.",
                         times * h
                     )
                 }
@@ -1099,7 +1098,7 @@ pub fn write_report(
         "| Local Edist < 1.0 cm and Enorm < 12° (paper: 0.56 cm, 8.34° on 10k vertices) | {} cm, {}° | {} |",
         fmt(local, 2),
         fmt(enorm, 2),
-        verdict(local.zip(enorm).map(|(d, a)| d < 1.0 && a < 12.0))
+        verdict(local.zip(enorm).map(|(d, a)| meets_accuracy_bar(d, a)))
     )
     .unwrap();
         // The same bar at the paper's vertex count, where Enorm is comparable.
@@ -1113,7 +1112,7 @@ pub fn write_report(
                 "| the same at the paper's 10k vertices (`{TSHIRT_10K}`, GarNet-Local on its own 10k T-shirt data) | {} cm, {}° | {} |",
                 fmt(d, 2),
                 fmt(a, 2),
-                verdict(d.zip(a).map(|(d, a)| d < 1.0 && a < 12.0))
+                verdict(d.zip(a).map(|(d, a)| meets_accuracy_bar(d, a)))
             )
             .unwrap();
         }
@@ -1162,7 +1161,7 @@ pub fn write_report(
             .ok()
             .flatten()
             .map(|s| s.seconds / 3600.0);
-        let why = shortfalls(&r, hours_local);
+        let why = shortfalls(&r, hours_local, plan.budget_hours);
         if !why.is_empty() {
             writeln!(w, "### Where a claim does not hold\n\nWhat limits it and what would fix it. The figures measured in earlier sessions, on other data and runs, are named as such, with the page that has them.\n\n{}\n", why.join("\n\n")).unwrap();
         }
@@ -1831,13 +1830,13 @@ samples = 1
                 serde_json::json!({"id": i, "methods": {"network": {"edist_cm": e}}})).collect::<Vec<_>>()})
         };
         let mut r = Results::default();
-        assert!(shortfalls(&r, None).is_empty());
+        assert!(shortfalls(&r, None, 24.0).is_empty());
         r.evals.insert(
             "tshirt-local".into(),
             eval((2.2, 16.7), &[2.1, 2.3, 2.2], Some((1.4, 12.9))),
         );
         // Before Global and Naive are evaluated only the bar is judged.
-        assert_eq!(shortfalls(&r, None).len(), 1);
+        assert_eq!(shortfalls(&r, None, 24.0).len(), 1);
         r.evals.insert(
             "tshirt-global".into(),
             eval((2.1, 16.5), &[2.0, 2.2, 2.1], None),
@@ -1846,7 +1845,7 @@ samples = 1
             "tshirt-naive".into(),
             eval((2.3, 17.4), &[2.2, 2.4, 2.3], None),
         );
-        let why = shortfalls(&r, Some(2.0));
+        let why = shortfalls(&r, Some(2.0), 24.0);
         assert_eq!(why.len(), 2, "{why:?}");
         // Local behind Global by 0.1 cm on every drape: the paired gap, then the causes.
         assert!(why[0].starts_with("**Local <= Global.** GarNet-Global drapes closer than GarNet-Local by 0.100 cm (Local - Global +0.100 ± 0.000 cm, paired over 3 test drapes)."), "{}", why[0]);
@@ -1881,7 +1880,7 @@ samples = 1
             why[1]
         );
         // A short run whose extrapolation fits the budget does not claim it exceeds it.
-        let why = shortfalls(&r, Some(0.2));
+        let why = shortfalls(&r, Some(0.2), 24.0);
         assert!(why[1].contains("(about 13 machine hours against this run's 0.20): an extrapolation, not a measurement."), "{}", why[1]);
         assert!(!why[1].contains("beyond"), "{}", why[1]);
 
@@ -1894,7 +1893,7 @@ samples = 1
             "tshirt-naive".into(),
             eval((2.2, 17.4), &[2.1, 2.3, 2.2], None),
         );
-        let why = shortfalls(&r, None);
+        let why = shortfalls(&r, None, 24.0);
         assert_eq!(why.len(), 2, "{why:?}");
         assert!(
             why[0].starts_with("**Global < Naive.**") && why[0].contains("(Global - Naive +0.050"),
@@ -1909,7 +1908,7 @@ samples = 1
             "tshirt-local".into(),
             eval((0.9, 12.5), &[0.9], Some((1.0, 12.0))),
         );
-        let why = shortfalls(&r, Some(2.0));
+        let why = shortfalls(&r, Some(2.0), 24.0);
         let bar = why.last().unwrap();
         assert!(
             bar.contains("Edist meets the bar and Enorm does not."),
@@ -1927,13 +1926,13 @@ samples = 1
             .insert("tshirt-global".into(), eval((0.95, 11.0), &[0.95], None));
         r.evals
             .insert("tshirt-naive".into(), eval((1.0, 11.0), &[1.0], None));
-        assert!(shortfalls(&r, None).is_empty());
+        assert!(shortfalls(&r, None, 24.0).is_empty());
         // The 10k run missing alone: its own figures and kernel map, the 3k run's pass named.
         r.evals.insert(
             TSHIRT_10K.into(),
             eval((1.5, 13.0), &[1.5], Some((1.2, 12.5))),
         );
-        let why = shortfalls(&r, Some(2.0));
+        let why = shortfalls(&r, Some(2.0), 24.0);
         assert_eq!(why.len(), 1, "{why:?}");
         assert!(why[0].contains("reaches 1.50 cm and 13.00° on the 10k T-shirt (on the 3k T-shirt it meets the bar: 0.90 cm, 11.00°). On the 10k T-shirt's test drapes the kernel map"), "{}", why[0]);
         assert!(why[0].contains("reaches 1.20 cm and 12.50°"), "{}", why[0]);
@@ -1946,7 +1945,7 @@ samples = 1
         // Both missing: the 3k run's paragraph names the 10k figures.
         r.evals
             .insert("tshirt-local".into(), eval((2.2, 16.7), &[2.2], None));
-        let why = shortfalls(&r, None);
+        let why = shortfalls(&r, None, 24.0);
         assert!(why.last().unwrap().contains("reaches 2.20 cm and 16.70° on the 3k T-shirt, 1.50 cm and 13.00° on the 10k T-shirt."), "{why:?}");
     }
 

@@ -294,17 +294,25 @@ pub struct AngleStats {
     pub degenerate: usize,
 }
 
+/// Each triangle's smallest angle (degrees; 0 for a degenerate one).
+///
+/// # Panics
+///
+/// If a triangle indexes past `vertices`.
+pub fn min_angles_deg(vertices: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
+    triangles
+        .iter()
+        .map(|t| min_angle(t.map(|i| vertices[i as usize])).to_degrees())
+        .collect()
+}
+
 /// Minimum-angle statistics of a mesh's triangles (all zero for a mesh without triangles).
 ///
 /// # Panics
 ///
 /// If a triangle indexes past `mesh.vertices`.
 pub fn angle_stats(mesh: &TriMesh) -> AngleStats {
-    let mut mins: Vec<f32> = mesh
-        .triangles
-        .iter()
-        .map(|t| min_angle(t.map(|i| mesh.vertices[i as usize])).to_degrees())
-        .collect();
+    let mut mins = min_angles_deg(&mesh.vertices, &mesh.triangles);
     if mins.is_empty() {
         return AngleStats {
             min_deg: 0.0,
