@@ -297,6 +297,8 @@ fn lock(clock: &Mutex<Clock>) -> std::sync::MutexGuard<'_, Clock> {
 /// Runs `drape reproduce`.
 pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     let plan = Plan::load(&args.plan)?;
+    plan.check_seed_configs(Path::new(""))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.plan.display()))?;
     let out = args
         .output
         .clone()
