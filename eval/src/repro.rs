@@ -1449,16 +1449,15 @@ pub fn write_report(
                 numbers.push(Number::new(&r, k, 0, (label, "seeds", &metric), mean, None));
             }
         }
-        let seeded = |k: &str| r.seeds(k).len() > 1;
         for (name, a, b) in [
             ("Local - Global", "tshirt-local", "tshirt-global"),
             ("Global - Naive", "tshirt-global", "tshirt-naive"),
             ("Local - Naive", "tshirt-local", "tshirt-naive"),
         ] {
-            if !(seeded(a) || seeded(b)) {
+            let (sa, sb) = (r.seeds(a), r.seeds(b));
+            if sa.len() == 1 && sb.len() == 1 {
                 continue;
             }
-            let (sa, sb) = (r.seeds(a), r.seeds(b));
             let gap = r.paired_edist_groups(&sa, &sb);
             if let Some((m, se, n)) = gap {
                 seed_rows.push(format!(
