@@ -609,6 +609,9 @@ pub struct Results {
     /// The runs that repeat a run with other seeds (`seed_of` in the plan), by the run
     /// they repeat.
     pub replicates: BTreeMap<String, Vec<String>>,
+    /// Manifests of the same drapes made again ([`record::DataSummary::same_drapes`]):
+    /// each earlier manifest's sha256 to the dataset's present one.
+    pub same_drapes: BTreeMap<String, String>,
 }
 
 impl Results {
@@ -636,14 +639,24 @@ impl Results {
                     .push(run.key.clone());
             }
         }
+        for d in &plan.datasets {
+            if let Some(s) = record::DataSummary::find(plan, out, &d.key) {
+                for m in s.same_drapes {
+                    r.same_drapes.insert(m, s.manifest_sha256.clone());
+                }
+            }
+        }
         r
     }
 
-    /// The drapes run `key` was evaluated on: its dataset's manifest sha256 and split
-    /// (None for an evaluation without a provenance).
+    /// The drapes run `key` was evaluated on: its dataset's manifest sha256 (the present
+    /// one for a manifest of the same drapes made again) and split (None for an
+    /// evaluation without a provenance).
     fn drapes(&self, key: &str) -> Option<(&str, &str)> {
         let p = &self.evals.get(key)?["provenance"];
-        p["manifest_sha256"].as_str().zip(p["split"].as_str())
+        let m = p["manifest_sha256"].as_str()?;
+        let m = self.same_drapes.get(m).map_or(m, String::as_str);
+        Some((m, p["split"].as_str()?))
     }
 
     /// Run `key` and those of its seed replicates evaluated on the same drapes (dataset
@@ -1778,8 +1791,21 @@ pub fn write_report(
     for d in &plan.datasets {
         let line = record::DataSummary::find(plan, out, &d.key)
             .map(|s| {
+                let again = if s.same_drapes.is_empty() {
+                    String::new()
+                } else {
+                    let earlier: Vec<String> = s
+                        .same_drapes
+                        .iter()
+                        .map(|m| format!("`{}`", &m[..12.min(m.len())]))
+                        .collect();
+                    format!(
+                        "; made again by the same binary, so the same drapes as manifest {} (the manifests differ in their timings only)",
+                        earlier.join(", ")
+                    )
+                };
                 format!(
-                    "{} / {} / {} | {} | {} | {} at git `{}`",
+                    "{} / {} / {} | {} | {} | {} at git `{}`{again}",
                     s.converged[0],
                     s.converged[1],
                     s.converged[2],
@@ -2549,6 +2575,83 @@ samples = 1
             .check_seed_configs(&root)
             .unwrap_err();
         assert!(e.contains("in more than name and seed"), "{e}");
+    }
+
+    #[test]
+    fn drapes_made_again_by_the_same_binary_pair_with_the_evaluations_on_the_earlier_ones() {
+        let (dir, _) = scratch("again");
+        let (out, rec) = (dir.path().join("out"), dir.path().join("record"));
+        let plan: Plan = toml::from_str(&format!(
+            r#"name = "again"
+budget_hours = 1.0
+eval_planned_hours = 0.1
+record = "{}"
+[[datasets]]
+key = "tshirt"
+config = "cpu-repro-tshirt"
+planned_hours = 0.1
+[[runs]]
+key = "tshirt-local"
+config = "configs/train/tshirt-local.toml"
+data = "tshirt"
+planned_hours = 0.1
+[[runs]]
+key = "tshirt-global"
+config = "configs/train/tshirt-global.toml"
+data = "tshirt"
+planned_hours = 0.1
+[speedup]
+runs = []
+samples = 1
+"#,
+            rec.display()
+        ))
+        .unwrap();
+        plan.validate().unwrap();
+        let put = |key: &str, per: &[f64], manifest: &str| {
+            let v = serde_json::json!({
+                "provenance": {"manifest_sha256": manifest, "split": "test"},
+                "samples": per.iter().enumerate().map(|(i, e)|
+                    serde_json::json!({"id": i, "methods": {"network": {"edist_cm": e}}}))
+                    .collect::<Vec<_>>()});
+            let d = out.join("eval").join(key);
+            std::fs::create_dir_all(&d).unwrap();
+            std::fs::write(d.join("metrics.json"), v.to_string()).unwrap();
+        };
+        let (earlier, again) = ("a".repeat(64), "b".repeat(64));
+        // Local evaluated on the drapes made first, Global on those made again.
+        put("tshirt-local", &[2.2, 2.3, 2.2], &earlier);
+        put("tshirt-global", &[2.1, 2.2, 2.2], &again);
+        let summary = |same: Vec<String>| record::DataSummary {
+            config: "cpu-repro-tshirt".into(),
+            manifest_sha256: again.clone(),
+            config_sha256: "c".repeat(64),
+            program_sha256: Some("d".repeat(64)),
+            program_version: "0.1.0".into(),
+            git_revision: "0123456789abcdef".into(),
+            converged: [3, 0, 3],
+            failed: 0,
+            stepping: "10 substeps".into(),
+            same_drapes: same,
+        };
+        let record = |s: record::DataSummary| {
+            std::fs::create_dir_all(rec.join("data")).unwrap();
+            std::fs::write(
+                rec.join("data/tshirt.json"),
+                serde_json::to_vec(&s).unwrap(),
+            )
+            .unwrap();
+        };
+        // Without the record's word that they are the same drapes: no pairing.
+        record(summary(Vec::new()));
+        let r = Results::load(&plan, &out);
+        assert_eq!(r.paired_edist("tshirt-local", "tshirt-global"), None);
+        // The record says the earlier manifest is of the same drapes: they pair, drape by
+        // drape (+0.1, +0.1, 0 cm).
+        record(summary(vec![earlier.clone()]));
+        let r = Results::load(&plan, &out);
+        let (mean, _, n) = r.paired_edist("tshirt-local", "tshirt-global").unwrap();
+        assert!((mean - 0.0667).abs() < 1e-3 && n == 3, "{mean} {n}");
     }
 
     #[test]

@@ -41,8 +41,10 @@ pub struct ReproduceArgs {
     status: bool,
     /// Let `drape gen` resume a dataset that another build of drape began (as `drape gen
     /// --mixed-builds`: two builds drape differently by up to 15 mm; its manifest then
-    /// records no program). Without it such a dataset stops the plan with an error that
-    /// names the build.
+    /// records no program), and make again, with this build, a dataset the record says
+    /// another build draped and evaluations were made on (runs on the new drapes then do
+    /// not pair with those). Without it either stops the plan with an error that names
+    /// the build and how to make the same drapes.
     #[arg(long)]
     mixed_builds: bool,
 }
@@ -443,6 +445,19 @@ fn stages(
         r
     };
 
+    // A dataset to be made again whose recorded drapes have evaluations: only the build
+    // that draped them makes the same drapes (the message says how to get it).
+    if !mixed_builds {
+        let program = dataset::manifest::program_sha256();
+        for d in &plan.datasets {
+            if eval::repro::record::data_needed(plan, out, &d.key)
+                && let Some(why) =
+                    eval::repro::record::remake_differs(plan, out, &d.key, program.as_deref())
+            {
+                anyhow::bail!(why);
+            }
+        }
+    }
     let mut group: Vec<&PlanRun> = Vec::new();
     for (k, d) in plan.datasets.iter().enumerate() {
         let dir = data_dir(&d.key);

@@ -47,6 +47,12 @@ pub struct DataSummary {
     pub failed: usize,
     /// The simulator's stepping, as the report prints it.
     pub stepping: String,
+    /// The manifests' sha256 of earlier generations of the same drapes: the same config
+    /// made again by the same program (one binary drapes the same bytes: docs/datasets.md)
+    /// after a working folder was lost. Their manifests differ only in the timings they
+    /// record, so evaluations on them pair with evaluations on this one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub same_drapes: Vec<String>,
 }
 
 impl DataSummary {
@@ -69,7 +75,37 @@ impl DataSummary {
             converged: [ok(Split::Train), ok(Split::Val), ok(Split::Test)],
             failed: t.values().map(|x| x.failed).sum(),
             stepping: m.dataset_config().map_or("–".into(), |c| c.sim.stepping()),
+            same_drapes: Vec::new(),
         }))
+    }
+
+    /// This summary of a dataset made again, given the one recorded before (`earlier`):
+    /// made by the same program (recorded in both) from the same config, it holds the same
+    /// drapes, and the earlier manifests are kept in `same_drapes`.
+    pub fn after(mut self, earlier: Option<Self>) -> Self {
+        if let Some(e) = earlier
+            && e.manifest_sha256 != self.manifest_sha256
+            && e.config_sha256 == self.config_sha256
+            && e.program_sha256.is_some()
+            && e.program_sha256 == self.program_sha256
+        {
+            for m in e.same_drapes.into_iter().chain([e.manifest_sha256]) {
+                if m != self.manifest_sha256 && !self.same_drapes.contains(&m) {
+                    self.same_drapes.push(m);
+                }
+            }
+        }
+        self
+    }
+
+    /// The summary recorded for dataset `key` in the plan's record, if any.
+    pub fn recorded(plan: &Plan, key: &str) -> Option<Self> {
+        let rec = plan
+            .record
+            .as_ref()?
+            .join("data")
+            .join(format!("{key}.json"));
+        serde_json::from_slice(&std::fs::read(rec).ok()?).ok()
     }
 
     /// Dataset `key`'s summary: from its manifest in the working folder `out`, else
@@ -82,14 +118,9 @@ impl DataSummary {
             .map_or("", |d| d.config.as_str());
         let live = out.join("data").join(key).join("manifest.json");
         if let Ok(Some(s)) = Self::read(config, &live) {
-            return Some(s);
+            return Some(s.after(Self::recorded(plan, key)));
         }
-        let rec = plan
-            .record
-            .as_ref()?
-            .join("data")
-            .join(format!("{key}.json"));
-        serde_json::from_slice(&std::fs::read(rec).ok()?).ok()
+        Self::recorded(plan, key)
     }
 }
 
@@ -160,6 +191,7 @@ pub fn save(plan: &Plan, out: &Path, ledger: &Ledger) -> Saved {
         let mp = out.join("data").join(&d.key).join("manifest.json");
         match DataSummary::read(&d.config, &mp) {
             Ok(Some(s)) => {
+                let s = s.after(DataSummary::recorded(plan, &d.key));
                 let bytes = serde_json::to_vec_pretty(&s).expect("summary serialises");
                 saved.note(put_bytes(
                     &bytes,
@@ -350,6 +382,67 @@ pub fn data_needed(plan: &Plan, out: &Path, key: &str) -> bool {
     })
 }
 
+/// Why this build should not make dataset `key` again, if it should not: the working
+/// folder `out` lacks it, the record names the build that made it (`program_sha256`),
+/// this build (`program`) is another, and an evaluation restored into `out` was made on
+/// the recorded drapes (its manifest's sha256). Two builds drape differently by up to
+/// 15 mm (docs/datasets.md), so runs on the new drapes would not pair with the recorded
+/// ones. The message says how to make the same drapes again: a release build of the
+/// recorded revision at the same path with the same toolchain is the same binary.
+pub fn remake_differs(plan: &Plan, out: &Path, key: &str, program: Option<&str>) -> Option<String> {
+    let dir = out.join("data").join(key);
+    if dir.join("manifest.json").exists() {
+        return None;
+    }
+    let rec = plan
+        .record
+        .as_ref()?
+        .join("data")
+        .join(format!("{key}.json"));
+    let s = DataSummary::recorded(plan, key)?;
+    let made_by = s.program_sha256.as_deref()?;
+    if program == Some(made_by) {
+        return None;
+    }
+    let on_it: Vec<&str> = plan
+        .runs
+        .iter()
+        .filter(|r| r.data == key)
+        .filter(|r| {
+            let m = out.join("eval").join(&r.key).join("metrics.json");
+            std::fs::read(m)
+                .ok()
+                .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+                .is_some_and(|v| {
+                    v["provenance"]["manifest_sha256"].as_str() == Some(&s.manifest_sha256)
+                })
+        })
+        .map(|r| r.key.as_str())
+        .collect();
+    if on_it.is_empty() {
+        return None;
+    }
+    let short = |x: &str| x.chars().take(12).collect::<String>();
+    let rate = plan
+        .datasets
+        .iter()
+        .find(|d| d.key == key)
+        .and_then(|d| d.max_failure_rate)
+        .map_or(String::new(), |r| format!(" --max-failure-rate {r}"));
+    Some(format!(
+        "dataset {key} is to be made again, but the record's ({}) was draped by another build of drape (program sha256 {}, git {}; this one {}), and the evaluations of {} were made on those drapes (manifest sha256 {}): two builds drape differently by up to 15 mm, so runs on new drapes would not pair with them. To make the same drapes, build git {} in a checkout at the path and with the Rust toolchain that built it (a release build is then the same binary: check its sha256), run its `drape gen {} -o {}{rate}`, then this command again; or pass --mixed-builds to make the dataset with this build",
+        rec.display(),
+        short(made_by),
+        short(&s.git_revision),
+        program.map_or("unknown".into(), short),
+        on_it.join(", "),
+        short(&s.manifest_sha256),
+        short(&s.git_revision),
+        s.config,
+        dir.display()
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -508,5 +601,109 @@ samples = 2
         restore(&p, &last).unwrap();
         assert!(!data_needed(&p, &last, "shirt"));
         assert!(last.join("speedup/base.json").exists());
+    }
+
+    #[test]
+    fn a_dataset_the_record_pairs_evaluations_with_is_not_made_again_by_another_build() {
+        let root = tempfile::tempdir().unwrap();
+        let (out, rec) = (root.path().join("out"), root.path().join("record"));
+        let p = plan(&rec);
+        let (made_by, manifest) = ("a".repeat(64), "b".repeat(64));
+        let summary = |program: Option<&str>| DataSummary {
+            config: "tiny".into(),
+            manifest_sha256: manifest.clone(),
+            config_sha256: "c".repeat(64),
+            program_sha256: program.map(str::to_string),
+            program_version: "0.1.0".into(),
+            git_revision: "0123456789abcdef".into(),
+            converged: [8, 0, 0],
+            failed: 0,
+            stepping: "10 substeps".into(),
+            same_drapes: Vec::new(),
+        };
+        let write_summary = |s: &DataSummary| {
+            std::fs::create_dir_all(rec.join("data")).unwrap();
+            std::fs::write(rec.join("data/shirt.json"), serde_json::to_vec(s).unwrap()).unwrap();
+        };
+        let evaluated_on = |sha: &str| {
+            let d = out.join("eval/base");
+            std::fs::create_dir_all(&d).unwrap();
+            let m = serde_json::json!({"provenance": {"manifest_sha256": sha, "split": "test"}});
+            std::fs::write(d.join("metrics.json"), m.to_string()).unwrap();
+        };
+        let other = "d".repeat(64);
+        // No record of the data yet: nothing to keep.
+        assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
+        write_summary(&summary(Some(&made_by)));
+        // Recorded, but nothing was evaluated on it: any build may make it.
+        assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
+        // An evaluation on those drapes: another build is refused, with the way to make
+        // the same drapes; the build that made them is not.
+        evaluated_on(&manifest);
+        let e = remake_differs(&p, &out, "shirt", Some(&other)).unwrap();
+        for part in [
+            "program sha256 aaaaaaaaaaaa, git 0123456789ab; this one dddddddddddd",
+            "evaluations of base were made on those drapes (manifest sha256 bbbbbbbbbbbb)",
+            "build git 0123456789ab",
+            "`drape gen tiny -o ",
+            "--mixed-builds",
+        ] {
+            assert!(e.contains(part), "{part:?} not in {e}");
+        }
+        assert!(remake_differs(&p, &out, "shirt", None).is_some());
+        assert_eq!(remake_differs(&p, &out, "shirt", Some(&made_by)), None);
+        // Evaluated on other drapes, or a record that names no build, or the data there
+        // already: nothing to keep.
+        evaluated_on(&other);
+        assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
+        evaluated_on(&manifest);
+        write_summary(&summary(None));
+        assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
+        write_summary(&summary(Some(&made_by)));
+        std::fs::create_dir_all(out.join("data/shirt")).unwrap();
+        std::fs::write(out.join("data/shirt/manifest.json"), "{}").unwrap();
+        assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
+    }
+
+    #[test]
+    fn a_dataset_made_again_by_the_same_program_keeps_the_earlier_manifests() {
+        let summary = |manifest: &str, program: Option<&str>, config: &str| DataSummary {
+            config: "tiny".into(),
+            manifest_sha256: manifest.repeat(64),
+            config_sha256: config.repeat(64),
+            program_sha256: program.map(|p| p.repeat(64)),
+            program_version: "0.1.0".into(),
+            git_revision: "0123456789abcdef".into(),
+            converged: [8, 0, 0],
+            failed: 0,
+            stepping: "10 substeps".into(),
+            same_drapes: Vec::new(),
+        };
+        let first = summary("1", Some("p"), "c");
+        // The same program and config: the first manifest is kept, and a third
+        // generation keeps both earlier ones.
+        let second = summary("2", Some("p"), "c").after(Some(first.clone()));
+        assert_eq!(second.same_drapes, vec!["1".repeat(64)]);
+        let third = summary("3", Some("p"), "c").after(Some(second.clone()));
+        assert_eq!(third.same_drapes, vec!["1".repeat(64), "2".repeat(64)]);
+        // The same manifest again (its summary saved twice): nothing to keep.
+        assert_eq!(
+            summary("1", Some("p"), "c").after(Some(first.clone())),
+            first
+        );
+        // Another program, no program recorded, or another config: other drapes.
+        for other in [
+            summary("2", Some("q"), "c"),
+            summary("2", None, "c"),
+            summary("2", Some("p"), "e"),
+        ] {
+            assert!(other.after(Some(first.clone())).same_drapes.is_empty());
+        }
+        assert!(
+            summary("2", Some("p"), "c")
+                .after(Some(summary("1", None, "c")))
+                .same_drapes
+                .is_empty()
+        );
     }
 }
