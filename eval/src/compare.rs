@@ -80,7 +80,7 @@ pub fn check_same_drapes(a: &Path, b: &Path) -> Result<(), EvalError> {
     if let (Some((ma, sa)), Some((mb, sb))) = (evaluated_on(a)?, evaluated_on(b)?) {
         if (&ma, &sa) != (&mb, &sb) {
             return Err(EvalError::Invalid(format!(
-                "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset",
+                "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset (a dataset made again by the same binary has the same drapes under another manifest sha256, as its manifest records timings: `drape reproduce` pairs such evaluations when its record lists the earlier manifest under `same_drapes`)",
                 a.display(),
                 dataset::manifest::short_hex(&ma),
                 b.display(),

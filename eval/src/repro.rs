@@ -342,6 +342,11 @@ pub struct Ledger {
     pub done: BTreeMap<String, bool>,
     /// Wall seconds of the machine while any stage ran: what the budget counts.
     pub machine_seconds: f64,
+    /// Of `seconds`, those of unfinished dataset stages whose drapes a lost machine took
+    /// with it (set when a fresh working folder takes the ledger from the plan's record):
+    /// they count in the budget, not in the pace of the drapes made since.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub lost: BTreeMap<String, f64>,
 }
 
 /// What the heartbeat of an earlier `drape reproduce` wrote to `OUT/stages.running.json`
@@ -378,6 +383,8 @@ impl Ledger {
             seconds: BTreeMap<String, f64>,
             done: BTreeMap<String, bool>,
             machine_seconds: Option<f64>,
+            #[serde(default)]
+            lost: BTreeMap<String, f64>,
         }
         match std::fs::read(path) {
             Ok(b) => {
@@ -390,6 +397,7 @@ impl Ledger {
                     seconds: f.seconds,
                     done: f.done,
                     machine_seconds,
+                    lost: f.lost,
                 })
             }
             Err(_) => Ok(Self::default()),

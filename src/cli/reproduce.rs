@@ -44,7 +44,7 @@ pub struct ReproduceArgs {
     /// records no program), and make again, with this build, a dataset the record says
     /// another build draped and evaluations were made on (runs on the new drapes then do
     /// not pair with those). Without it either stops the plan with an error that names
-    /// the build and how to make the same drapes.
+    /// the build (and, for a dataset to be made again, how to make the same drapes).
     #[arg(long)]
     mixed_builds: bool,
 }
@@ -447,15 +447,19 @@ fn stages(
 
     // A dataset to be made again whose recorded drapes have evaluations: only the build
     // that draped them makes the same drapes (the message says how to get it).
-    if !mixed_builds {
-        let program = dataset::manifest::program_sha256();
-        for d in &plan.datasets {
-            if eval::repro::record::data_needed(plan, out, &d.key)
-                && let Some(why) =
-                    eval::repro::record::remake_differs(plan, out, &d.key, program.as_deref())
-            {
+    // With --mixed-builds it is made by this build, and said so.
+    let program = dataset::manifest::program_sha256();
+    for d in &plan.datasets {
+        if eval::repro::record::data_needed(plan, out, &d.key)
+            && let Some(why) =
+                eval::repro::record::remake_differs(plan, out, &d.key, program.as_deref())
+        {
+            if !mixed_builds {
                 anyhow::bail!(why);
             }
+            println!(
+                "warning (--mixed-builds: made with this build, its runs will not pair with the recorded evaluations): {why}"
+            );
         }
     }
     let mut group: Vec<&PlanRun> = Vec::new();

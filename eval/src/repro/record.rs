@@ -81,10 +81,10 @@ impl DataSummary {
 
     /// This summary of a dataset made again, given the one recorded before (`earlier`):
     /// made by the same program (recorded in both) from the same config, it holds the same
-    /// drapes, and the earlier manifests are kept in `same_drapes`.
+    /// drapes, and the earlier manifests are kept in `same_drapes` (the same summary saved
+    /// again keeps them too).
     pub fn after(mut self, earlier: Option<Self>) -> Self {
         if let Some(e) = earlier
-            && e.manifest_sha256 != self.manifest_sha256
             && e.config_sha256 == self.config_sha256
             && e.program_sha256.is_some()
             && e.program_sha256 == self.program_sha256
@@ -330,7 +330,23 @@ pub fn restore(plan: &Plan, out: &Path) -> Result<Vec<String>, EvalError> {
         let ahead =
             !lp.exists() || Ledger::load(&rl)?.machine_seconds > Ledger::load(&lp)?.machine_seconds;
         if ahead {
-            copy(&rl, &lp)?;
+            // The drapes of unfinished datasets that this folder lacks were lost with the
+            // machine that made them: their hours stay in the budget, not in the pace.
+            let mut ledger = Ledger::load(&rl)?;
+            for d in &plan.datasets {
+                let name = format!("gen {}", d.key);
+                let s = ledger.seconds.get(&name).copied().unwrap_or(0.0);
+                if ledger.done.get(&name) != Some(&true)
+                    && s > 0.0
+                    && !out.join("data").join(&d.key).exists()
+                {
+                    ledger.lost.insert(name, s);
+                }
+            }
+            if let Some(p) = lp.parent() {
+                std::fs::create_dir_all(p).map_err(io(p))?;
+            }
+            ledger.save(&lp)?;
             done.push("the ledger of measured hours".to_string());
         }
     }
@@ -404,6 +420,10 @@ pub fn remake_differs(plan: &Plan, out: &Path, key: &str, program: Option<&str>)
     if program == Some(made_by) {
         return None;
     }
+    // The recorded drapes, under their present manifest or an earlier one.
+    let drapes: Vec<&str> = std::iter::once(s.manifest_sha256.as_str())
+        .chain(s.same_drapes.iter().map(String::as_str))
+        .collect();
     let on_it: Vec<&str> = plan
         .runs
         .iter()
@@ -414,7 +434,9 @@ pub fn remake_differs(plan: &Plan, out: &Path, key: &str, program: Option<&str>)
                 .ok()
                 .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
                 .is_some_and(|v| {
-                    v["provenance"]["manifest_sha256"].as_str() == Some(&s.manifest_sha256)
+                    v["provenance"]["manifest_sha256"]
+                        .as_str()
+                        .is_some_and(|m| drapes.contains(&m))
                 })
         })
         .map(|r| r.key.as_str())
@@ -429,17 +451,23 @@ pub fn remake_differs(plan: &Plan, out: &Path, key: &str, program: Option<&str>)
         .find(|d| d.key == key)
         .and_then(|d| d.max_failure_rate)
         .map_or(String::new(), |r| format!(" --max-failure-rate {r}"));
+    let to = std::path::absolute(&dir).unwrap_or(dir);
     Some(format!(
-        "dataset {key} is to be made again, but the record's ({}) was draped by another build of drape (program sha256 {}, git {}; this one {}), and the evaluations of {} were made on those drapes (manifest sha256 {}): two builds drape differently by up to 15 mm, so runs on new drapes would not pair with them. To make the same drapes, build git {} in a checkout at the path and with the Rust toolchain that built it (a release build is then the same binary: check its sha256), run its `drape gen {} -o {}{rate}`, then this command again; or pass --mixed-builds to make the dataset with this build",
+        "dataset {key} is to be made again, but the record's summary of it ({}) says another build of drape draped it (program sha256 {}, git {}; this one {}), and the evaluations of {} were made on those drapes (manifest sha256 {}): two builds drape differently by up to 15 mm, so runs on new drapes would not pair with them. To make the same drapes, check out git {} and build it with `cargo build --release` at the path and with the Rust toolchain that built it (neither is recorded; with both the same, the build is the same binary: check that its sha256 is {}), run its `drape gen {} -o {}{rate}`, then this command again; or pass --mixed-builds to make the dataset with this build",
         rec.display(),
         short(made_by),
         short(&s.git_revision),
         program.map_or("unknown".into(), short),
         on_it.join(", "),
-        short(&s.manifest_sha256),
+        drapes
+            .iter()
+            .map(|m| short(m))
+            .collect::<Vec<_>>()
+            .join(" = "),
         short(&s.git_revision),
+        short(made_by),
         s.config,
-        dir.display()
+        to.display()
     ))
 }
 
@@ -574,6 +602,8 @@ samples = 2
             std::fs::read(fresh.join("runs/base/best.bpk")).unwrap(),
             b"base weights"
         );
+        // The ledger comes along; the dataset stage was not finished, so its hours went
+        // with the lost drapes (none here: it had not begun).
         assert_eq!(Ledger::load(&fresh.join("stages.json")).unwrap(), ledger);
         assert!(data_needed(&p, &fresh, "shirt"));
         // Restoring again changes nothing.
@@ -644,7 +674,8 @@ samples = 2
         for part in [
             "program sha256 aaaaaaaaaaaa, git 0123456789ab; this one dddddddddddd",
             "evaluations of base were made on those drapes (manifest sha256 bbbbbbbbbbbb)",
-            "build git 0123456789ab",
+            "check that its sha256 is aaaaaaaaaaaa",
+            "check out git 0123456789ab and build it",
             "`drape gen tiny -o ",
             "--mixed-builds",
         ] {
@@ -652,6 +683,18 @@ samples = 2
         }
         assert!(remake_differs(&p, &out, "shirt", None).is_some());
         assert_eq!(remake_differs(&p, &out, "shirt", Some(&made_by)), None);
+        // The drapes made again by the same binary (a new manifest; the record keeps the
+        // earlier one): the evaluations on the earlier manifest still count.
+        let mut again = summary(Some(&made_by));
+        again.manifest_sha256 = "e".repeat(64);
+        again.same_drapes = vec![manifest.clone()];
+        write_summary(&again);
+        let e = remake_differs(&p, &out, "shirt", Some(&other)).unwrap();
+        assert!(
+            e.contains("(manifest sha256 eeeeeeeeeeee = bbbbbbbbbbbb)"),
+            "{e}"
+        );
+        write_summary(&summary(Some(&made_by)));
         // Evaluated on other drapes, or a record that names no build, or the data there
         // already: nothing to keep.
         evaluated_on(&other);
@@ -686,10 +729,18 @@ samples = 2
         assert_eq!(second.same_drapes, vec!["1".repeat(64)]);
         let third = summary("3", Some("p"), "c").after(Some(second.clone()));
         assert_eq!(third.same_drapes, vec!["1".repeat(64), "2".repeat(64)]);
-        // The same manifest again (its summary saved twice): nothing to keep.
+        // The same manifest again (its summary saved twice): the earlier ones stay.
         assert_eq!(
             summary("1", Some("p"), "c").after(Some(first.clone())),
             first
+        );
+        assert_eq!(
+            summary("2", Some("p"), "c").after(Some(second.clone())),
+            second
+        );
+        assert_eq!(
+            summary("3", Some("p"), "c").after(Some(third.clone())),
+            third
         );
         // Another program, no program recorded, or another config: other drapes.
         for other in [
@@ -705,5 +756,86 @@ samples = 2
                 .same_drapes
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn a_fresh_folder_counts_an_unfinished_datasets_hours_as_lost() {
+        let root = tempfile::tempdir().unwrap();
+        let (out, rec) = (root.path().join("out"), root.path().join("record"));
+        let p = plan(&rec);
+        let mut ledger = Ledger::default();
+        ledger.machine_seconds = 900.0;
+        ledger.seconds.insert("gen shirt".into(), 900.0);
+        std::fs::create_dir_all(&rec).unwrap();
+        ledger.save(&rec.join("stages.json")).unwrap();
+        // A fresh folder: the drapes of those 900 s are gone.
+        restore(&p, &out).unwrap();
+        let got = Ledger::load(&out.join("stages.json")).unwrap();
+        assert_eq!(got.lost.get("gen shirt"), Some(&900.0));
+        assert_eq!(got.seconds, ledger.seconds);
+        assert_eq!(got.machine_seconds, 900.0);
+        // A folder that holds the dataset keeps its drapes' hours in the pace; a finished
+        // dataset has no pace.
+        let kept = root.path().join("kept");
+        std::fs::create_dir_all(kept.join("data/shirt")).unwrap();
+        restore(&p, &kept).unwrap();
+        assert!(
+            Ledger::load(&kept.join("stages.json"))
+                .unwrap()
+                .lost
+                .is_empty()
+        );
+        ledger.done.insert("gen shirt".into(), true);
+        ledger.save(&rec.join("stages.json")).unwrap();
+        let done = root.path().join("done");
+        restore(&p, &done).unwrap();
+        assert!(
+            Ledger::load(&done.join("stages.json"))
+                .unwrap()
+                .lost
+                .is_empty()
+        );
+    }
+
+    #[test]
+    fn the_record_keeps_the_earlier_drapes_across_saves_of_a_dataset_made_again() {
+        let root = tempfile::tempdir().unwrap();
+        let (out, rec) = (root.path().join("out"), root.path().join("record"));
+        let p = plan(&rec);
+        let c = dataset::config::DatasetConfig::load("tiny").unwrap();
+        // A manifest by `program`; `made` stands for the timings that tell two
+        // generations of the same drapes apart.
+        let make = |program: &str, made: &str| {
+            let mut m =
+                dataset::manifest::Manifest::new(&c, Default::default(), "s".repeat(64), vec![]);
+            m.program_sha256 = Some(program.repeat(64));
+            m.size_templates.insert("made".into(), made.into());
+            let dir = out.join("data/shirt");
+            std::fs::create_dir_all(&dir).unwrap();
+            let bytes = serde_json::to_vec(&m).unwrap();
+            std::fs::write(dir.join("manifest.json"), &bytes).unwrap();
+            sha256(&bytes)
+        };
+        let ledger = Ledger::default();
+        let recorded = || DataSummary::recorded(&p, "shirt").unwrap();
+        let first = make("p", "first");
+        save(&p, &out, &ledger);
+        assert_eq!(recorded().manifest_sha256, first);
+        assert!(recorded().same_drapes.is_empty());
+        // Made again by the same program: the record links the two, and keeps the link
+        // through later saves; the report finds it.
+        let second = make("p", "second");
+        for _ in 0..2 {
+            save(&p, &out, &ledger);
+            assert_eq!(recorded().manifest_sha256, second);
+            assert_eq!(recorded().same_drapes, vec![first.clone()]);
+        }
+        let found = DataSummary::find(&p, &out, "shirt").unwrap();
+        assert_eq!(found.same_drapes, vec![first.clone()]);
+        // Made again by another program: other drapes, no link.
+        let third = make("q", "third");
+        save(&p, &out, &ledger);
+        assert_eq!(recorded().manifest_sha256, third);
+        assert!(recorded().same_drapes.is_empty());
     }
 }

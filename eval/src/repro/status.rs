@@ -168,19 +168,21 @@ pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> Str
             let dir = out.join("data").join(&d.key);
             let made = dataset::config::DatasetConfig::load(&d.config)
                 .and_then(|c| dataset::generate::drapes_done(&c, &dir));
+            // The hours of the drapes on disk: a lost machine's are not in the pace.
+            let hours = hours - ledger.lost.get(&name).map_or(0.0, |s| s / 3600.0);
             match made {
-                // Drapes left at the pace so far: the stage's hours over the drapes made
-                // (on all threads or one beside training; a lost machine's hours count).
-                Ok((n, total)) if n > 0 => {
+                // Drapes left at the pace so far: the hours over the drapes made (on all
+                // threads or one beside training).
+                Ok((n, total)) if n > 0 && hours > 0.0 => {
                     let rest = hours * (total - n.min(total)) as f64 / n as f64;
                     left += rest;
                     format!(
                         "under way: {n} of {total} drapes, about {rest:.2} h left at this pace (resumes)"
                     )
                 }
-                Ok((_, total)) => {
+                Ok((n, total)) => {
                     left += d.planned_hours;
-                    format!("under way: 0 of {total} drapes (resumes)")
+                    format!("under way: {n} of {total} drapes (resumes)")
                 }
                 Err(e) => {
                     left += d.planned_hours;
@@ -431,5 +433,27 @@ samples = 1
             "{text}"
         );
         assert!(text.contains("\nabout 0.8 machine hours left"), "{text}");
+        // A machine lost after 0.1 h of it took its drapes along; two drapes made since in
+        // 0.05 h: the pace is this folder's (0.15 h left), the budget counts all 0.15 h.
+        std::fs::create_dir_all(&partial).unwrap();
+        for id in &shards[0].samples[..2] {
+            std::fs::write(partial.join(format!("{id:08}.safetensors")), b"").unwrap();
+        }
+        ledger.seconds.insert("gen tshirt".into(), 540.0);
+        ledger.lost.insert("gen tshirt".into(), 360.0);
+        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        assert!(
+            text.contains(
+                "| gen tshirt | 0.50 | 0.15 | under way: 2 of 8 drapes, about 0.15 h left at this pace (resumes) |"
+            ),
+            "{text}"
+        );
+        // Drapes made but no hours since the loss yet: the planned hours count.
+        ledger.seconds.insert("gen tshirt".into(), 360.0);
+        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        assert!(
+            text.contains("| gen tshirt | 0.50 | 0.10 | under way: 2 of 8 drapes (resumes) |"),
+            "{text}"
+        );
     }
 }
