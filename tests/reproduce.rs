@@ -2,7 +2,8 @@
 //! fine-tune from it, evaluates both, times the speed-up and writes the report with our
 //! numbers beside the paper's; a second run resumes without redoing anything; a plan's
 //! record lets a fresh working folder resume without the data; a spent budget stops it
-//! with a clear message; a slot the runs leave free makes the next dataset.
+//! with a clear message; a slot the runs leave free makes the next dataset; `--only` works
+//! on some datasets and leaves the rest for later.
 
 mod common;
 
@@ -555,6 +556,109 @@ samples = 1
         machine + 2.0 >= secs("gen a") + secs("train a-local") + secs("train b-naive"),
         "{ledger}"
     );
+}
+
+/// `--only b` makes dataset b and trains and evaluates its run alone (on every thread: nothing
+/// is beside it), leaving dataset a, its run and its speed-up for a later invocation; the
+/// plan's evaluations are then not done. A key the plan lacks is refused, naming its keys.
+#[test]
+fn reproduce_only_works_on_the_datasets_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    tiny_configs(dir);
+    std::fs::write(
+        dir.join("plan.toml"),
+        format!(
+            r#"name = "only"
+budget_hours = 1.0
+eval_planned_hours = 0.01
+parallel_runs = 2
+
+[[datasets]]
+key = "a"
+config = "tiny"
+planned_hours = 0.01
+
+[[datasets]]
+key = "b"
+config = "tiny"
+planned_hours = 0.01
+
+[[runs]]
+key = "a-naive"
+config = "{0}/naive.toml"
+data = "a"
+planned_hours = 0.01
+epochs = 1
+
+[[runs]]
+key = "b-naive"
+config = "{0}/naive.toml"
+data = "b"
+planned_hours = 0.01
+epochs = 1
+
+[speedup]
+runs = ["a-naive"]
+samples = 1
+"#,
+            dir.display()
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let reproduce = |only: &str| {
+        run(drape()
+            .arg("reproduce")
+            .arg(dir.join("plan.toml"))
+            .arg("-o")
+            .arg(&out)
+            .arg("--docs")
+            .arg(dir.join("docs"))
+            .arg("--only")
+            .arg(only))
+    };
+    let (ok, text) = reproduce("zz");
+    assert!(
+        !ok && text.contains("has no dataset \"zz\" (its datasets: a, b)"),
+        "{text}"
+    );
+    assert!(!out.exists(), "nothing is made for a refused key");
+
+    let (ok, text) = reproduce("b");
+    assert!(ok, "{text}");
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = (cores / 2).max(1) * 2;
+    assert!(
+        text.contains(&format!("== train b-naive on {threads} thread(s)")),
+        "the lone run takes both slots' threads: {text}"
+    );
+    assert!(out.join("data/b/manifest.json").exists());
+    assert!(out.join("eval/b-naive/metrics.json").exists());
+    assert!(!out.join("data/a").exists(), "{text}");
+    assert!(!out.join("runs/a-naive").exists(), "{text}");
+    assert!(!out.join("speedup/a-naive.json").exists(), "{text}");
+    let ledger = |k: &str| {
+        let l: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("stages.json")).unwrap()).unwrap();
+        l[k].clone()
+    };
+    assert_eq!(ledger("done")["gen b"], true);
+    assert_eq!(ledger("done")["train b-naive"], true);
+    assert_eq!(
+        ledger("done")["eval"],
+        false,
+        "a-naive is not evaluated yet"
+    );
+    assert!(ledger("seconds").get("gen a").is_none());
+
+    // The rest, later: b is not made again, a and its run and speed-up are.
+    let (ok, text) = reproduce("a");
+    assert!(ok, "{text}");
+    assert!(!text.contains("== gen b"), "{text}");
+    assert!(out.join("eval/a-naive/metrics.json").exists());
+    assert!(out.join("speedup/a-naive.json").exists());
+    assert_eq!(ledger("done")["eval"], true);
 }
 
 /// Writes the tiny training config as DIR/local.toml and its Naive twin as DIR/naive.toml;

@@ -2585,16 +2585,30 @@ samples = 1
         assert!(e.contains("in more than name and seed"), "{e}");
     }
 
-    #[test]
-    fn drapes_made_again_by_the_same_binary_pair_with_the_evaluations_on_the_earlier_ones() {
-        let (dir, _) = scratch("again");
-        let (out, rec) = (dir.path().join("out"), dir.path().join("record"));
+    /// Writes an evaluation of run `key` under `out` on the test split of the dataset with
+    /// manifest `manifest`: per test drape the network's Edist `per`, and their mean.
+    fn put_eval(out: &Path, key: &str, per: &[f64], manifest: &str) {
+        let mean = per.iter().sum::<f64>() / per.len() as f64;
+        let v = serde_json::json!({
+            "provenance": {"manifest_sha256": manifest, "split": "test"},
+            "summaries": {"network": {"edist_cm": [mean, 0.1], "enorm_deg": [16.0, 1.0]}},
+            "samples": per.iter().enumerate().map(|(i, e)|
+                serde_json::json!({"id": i, "methods": {"network": {"edist_cm": e}}}))
+                .collect::<Vec<_>>()});
+        let d = out.join("eval").join(key);
+        std::fs::create_dir_all(&d).unwrap();
+        std::fs::write(d.join("metrics.json"), v.to_string()).unwrap();
+    }
+
+    /// A plan on the T-shirt data that trains GarNet-Local and GarNet-Global, then the
+    /// runs of `more` (TOML), with a record folder if given; validated.
+    fn tshirt_plan(name: &str, record: Option<&Path>, more: &str) -> Plan {
+        let record = record.map_or(String::new(), |r| format!("record = \"{}\"\n", r.display()));
         let plan: Plan = toml::from_str(&format!(
-            r#"name = "again"
+            r#"name = "{name}"
 budget_hours = 1.0
 eval_planned_hours = 0.1
-record = "{}"
-[[datasets]]
+{record}[[datasets]]
 key = "tshirt"
 config = "cpu-repro-tshirt"
 planned_hours = 0.1
@@ -2608,24 +2622,22 @@ key = "tshirt-global"
 config = "configs/train/tshirt-global.toml"
 data = "tshirt"
 planned_hours = 0.1
-[speedup]
+{more}[speedup]
 runs = []
 samples = 1
-"#,
-            rec.display()
+"#
         ))
         .unwrap();
         plan.validate().unwrap();
-        let put = |key: &str, per: &[f64], manifest: &str| {
-            let v = serde_json::json!({
-                "provenance": {"manifest_sha256": manifest, "split": "test"},
-                "samples": per.iter().enumerate().map(|(i, e)|
-                    serde_json::json!({"id": i, "methods": {"network": {"edist_cm": e}}}))
-                    .collect::<Vec<_>>()});
-            let d = out.join("eval").join(key);
-            std::fs::create_dir_all(&d).unwrap();
-            std::fs::write(d.join("metrics.json"), v.to_string()).unwrap();
-        };
+        plan
+    }
+
+    #[test]
+    fn drapes_made_again_by_the_same_binary_pair_with_the_evaluations_on_the_earlier_ones() {
+        let (dir, _) = scratch("again");
+        let (out, rec) = (dir.path().join("out"), dir.path().join("record"));
+        let plan = tshirt_plan("again", Some(&rec), "");
+        let put = |key: &str, per: &[f64], manifest: &str| put_eval(&out, key, per, manifest);
         let (earlier, again) = ("a".repeat(64), "b".repeat(64));
         // Local evaluated on the drapes made first, Global on those made again.
         put("tshirt-local", &[2.2, 2.3, 2.2], &earlier);
@@ -2664,25 +2676,10 @@ samples = 1
 
     #[test]
     fn second_seeds_judge_the_ordering_on_means_and_measure_their_scatter() {
-        let plan: Plan = toml::from_str(
-            r#"name = "seeds"
-budget_hours = 1.0
-eval_planned_hours = 0.1
-[[datasets]]
-key = "tshirt"
-config = "cpu-repro-tshirt"
-planned_hours = 0.1
-[[runs]]
-key = "tshirt-local"
-config = "configs/train/tshirt-local.toml"
-data = "tshirt"
-planned_hours = 0.1
-[[runs]]
-key = "tshirt-global"
-config = "configs/train/tshirt-global.toml"
-data = "tshirt"
-planned_hours = 0.1
-[[runs]]
+        let plan = tshirt_plan(
+            "seeds",
+            None,
+            r#"[[runs]]
 key = "tshirt-naive"
 config = "configs/train/tshirt-naive.toml"
 data = "tshirt"
@@ -2699,28 +2696,11 @@ config = "configs/train/tshirt-global-seed2.toml"
 data = "tshirt"
 seed_of = "tshirt-global"
 planned_hours = 0.1
-[speedup]
-runs = []
-samples = 1
 "#,
-        )
-        .unwrap();
-        plan.validate().unwrap();
+        );
         let (dir, _) = scratch("seeds");
         let out = dir.path().to_path_buf();
-        // An evaluation of `key` on the test split of the dataset with manifest `manifest`.
-        let put_on = |key: &str, per: &[f64], manifest: &str| {
-            let mean = per.iter().sum::<f64>() / per.len() as f64;
-            let v = serde_json::json!({
-                "provenance": {"manifest_sha256": manifest, "split": "test"},
-                "summaries": {"network": {"edist_cm": [mean, 0.1], "enorm_deg": [16.0, 1.0]}},
-                "samples": per.iter().enumerate().map(|(i, e)|
-                    serde_json::json!({"id": i, "methods": {"network": {"edist_cm": e}}}))
-                    .collect::<Vec<_>>()});
-            let d = out.join("eval").join(key);
-            std::fs::create_dir_all(&d).unwrap();
-            std::fs::write(d.join("metrics.json"), v.to_string()).unwrap();
-        };
+        let put_on = |key: &str, per: &[f64], manifest: &str| put_eval(&out, key, per, manifest);
         let put = |key: &str, per: &[f64]| put_on(key, per, "aa");
         put("tshirt-local", &[2.2, 2.3, 2.2]);
         put("tshirt-global", &[2.1, 2.2, 2.1]);

@@ -47,6 +47,18 @@ pub struct ReproduceArgs {
     /// the build (and, for a dataset to be made again, how to make the same drapes).
     #[arg(long)]
     mixed_builds: bool,
+    /// Work on these datasets only (keys of the plan's `[[datasets]]`, comma-separated):
+    /// make them and train and evaluate the runs on them, with their speed-ups; the other
+    /// stages wait for a later invocation. For sessions shorter than the whole plan: pick
+    /// the stages that finish within one (a machine that is lost keeps only finished
+    /// stages, through the record).
+    #[arg(
+        long,
+        value_name = "KEY,...",
+        value_delimiter = ',',
+        conflicts_with = "status"
+    )]
+    only: Vec<String>,
 }
 
 /// A child `drape` running `args` with `threads` worker threads (all cores if `None`).
@@ -301,6 +313,16 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     let plan = Plan::load(&args.plan)?;
     plan.check_seed_configs(Path::new(""))
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.plan.display()))?;
+    for k in &args.only {
+        if !plan.datasets.iter().any(|d| &d.key == k) {
+            let keys: Vec<&str> = plan.datasets.iter().map(|d| d.key.as_str()).collect();
+            anyhow::bail!(
+                "--only {k}: {} has no dataset {k:?} (its datasets: {})",
+                args.plan.display(),
+                keys.join(", ")
+            );
+        }
+    }
     let out = args
         .output
         .clone()
@@ -386,7 +408,7 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         if args.report_only {
             Ok(())
         } else {
-            stages(ctx, &plan, &out, &clock, args.mixed_builds)
+            stages(ctx, &plan, &out, &clock, args.mixed_builds, &args.only)
         }
     });
     let ledger = clock.into_inner().unwrap_or_else(|e| e.into_inner()).ledger;
@@ -416,9 +438,21 @@ fn stages(
     out: &Path,
     clock: &Mutex<Clock>,
     mixed_builds: bool,
+    only: &[String],
 ) -> anyhow::Result<()> {
     let data_dir = |key: &str| data_dir(out, key);
     let run_dir = |key: &str| run_dir(out, key);
+    // The datasets this invocation works on (all without --only), and the runs on them.
+    let chosen = |key: &str| only.is_empty() || only.iter().any(|k| k == key);
+    let datasets: Vec<&eval::repro::PlanDataset> =
+        plan.datasets.iter().filter(|d| chosen(&d.key)).collect();
+    let runs: Vec<&PlanRun> = plan.runs.iter().filter(|r| chosen(&r.data)).collect();
+    let speedups: Vec<&String> = plan
+        .speedup
+        .runs
+        .iter()
+        .filter(|k| runs.iter().any(|r| &&r.key == k))
+        .collect();
     let eval_dir = |key: &str| out.join("eval").join(key);
     let speed_file = |key: &str| out.join("speedup").join(format!("{key}.json"));
     // One stage on its own: skip it if `skip` says it is done, stop if over budget, time
@@ -449,7 +483,7 @@ fn stages(
     // that draped them makes the same drapes (the message says how to get it).
     // With --mixed-builds it is made by this build, and said so.
     let program = dataset::manifest::program_sha256();
-    for d in &plan.datasets {
+    for d in &datasets {
         if eval::repro::record::data_needed(plan, out, &d.key)
             && let Some(why) =
                 eval::repro::record::remake_differs(plan, out, &d.key, program.as_deref())
@@ -463,7 +497,7 @@ fn stages(
         }
     }
     let mut group: Vec<&PlanRun> = Vec::new();
-    for (k, d) in plan.datasets.iter().enumerate() {
+    for (k, d) in datasets.iter().enumerate() {
         let dir = data_dir(&d.key);
         // Done once `drape gen` has exited successfully (recorded in the ledger): a
         // manifest alone may belong to a dataset above its failure gate. Running gen on a
@@ -508,17 +542,17 @@ fn stages(
         // session may have to make again; but in multiples of `parallel_runs`, so that no
         // slot idles beside a lone run: the rest waits for the next dataset's runs (all
         // train after the last dataset).
-        group.extend(plan.runs.iter().filter(|r| r.data == d.key));
+        group.extend(runs.iter().copied().filter(|r| r.data == d.key));
         let (now, later) = eval::repro::split_group(
             &group,
             |r| !finished_run(&run_dir(&r.key)),
             plan.parallel_runs,
-            k + 1 == plan.datasets.len(),
+            k + 1 == datasets.len(),
         );
         if !now.is_empty() {
             // The next dataset, if it still has to be made: a slot that no run of `now`
             // will take makes it meanwhile.
-            let fill = plan.datasets.get(k + 1).filter(|n| {
+            let fill = datasets.get(k + 1).copied().filter(|n| {
                 !data_dir(&n.key).join("manifest.json").exists()
                     && eval::repro::record::data_needed(plan, out, &n.key)
             });
@@ -528,13 +562,12 @@ fn stages(
     }
 
     let evaluated = || {
-        plan.runs
-            .iter()
+        runs.iter()
             .all(|r| eval_dir(&r.key).join("metrics.json").exists())
-            && plan.speedup.runs.iter().all(|k| speed_file(k).exists())
+            && speedups.iter().all(|k| speed_file(k).exists())
     };
     stage("eval", &evaluated, &evaluated, &mut || {
-        for r in &plan.runs {
+        for r in &runs {
             let e = eval_dir(&r.key);
             if e.join("metrics.json").exists() {
                 continue;
@@ -555,7 +588,7 @@ fn stages(
             )?;
         }
         std::fs::create_dir_all(out.join("speedup"))?;
-        for k in &plan.speedup.runs {
+        for &k in &speedups {
             let f = speed_file(k);
             if f.exists() {
                 continue;
@@ -582,6 +615,15 @@ fn stages(
         }
         Ok(())
     })?;
+    if !only.is_empty() {
+        // The plan's evaluations are done only once those of the other datasets are too.
+        let all = plan
+            .runs
+            .iter()
+            .all(|r| eval_dir(&r.key).join("metrics.json").exists())
+            && plan.speedup.runs.iter().all(|k| speed_file(k).exists());
+        lock(clock).ledger.done.insert("eval".to_string(), all);
+    }
     Ok(())
 }
 
@@ -748,6 +790,17 @@ fn train_runs(
                 a.push("--widths".as_ref());
                 a.push(w.name().as_ref());
             }
+            // The last run, with nothing beside it to train, evaluate or make, takes every
+            // slot's threads.
+            let threads = if running.0.is_empty()
+                && pending.is_empty()
+                && to_eval.is_empty()
+                && fill.is_none()
+            {
+                threads.map(|t| t * parallel)
+            } else {
+                threads
+            };
             let spent = lock(clock).hours();
             let log = log_of(&r.key);
             match threads {

@@ -508,6 +508,23 @@ samples = 2
         p
     }
 
+    /// A dataset summary whose manifest, program and config sha256 repeat one character
+    /// each (`program` None: no program recorded).
+    fn summary(manifest: &str, program: Option<&str>, config: &str) -> DataSummary {
+        DataSummary {
+            config: "tiny".into(),
+            manifest_sha256: manifest.repeat(64),
+            config_sha256: config.repeat(64),
+            program_sha256: program.map(|p| p.repeat(64)),
+            program_version: "0.1.0".into(),
+            git_revision: "0123456789abcdef".into(),
+            converged: [8, 0, 0],
+            failed: 0,
+            stepping: "10 substeps".into(),
+            same_drapes: Vec::new(),
+        }
+    }
+
     /// A finished run as `drape train` leaves it (the files' contents are placeholders,
     /// except the state, which says finished).
     fn finish(out: &Path, key: &str) {
@@ -639,18 +656,6 @@ samples = 2
         let (out, rec) = (root.path().join("out"), root.path().join("record"));
         let p = plan(&rec);
         let (made_by, manifest) = ("a".repeat(64), "b".repeat(64));
-        let summary = |program: Option<&str>| DataSummary {
-            config: "tiny".into(),
-            manifest_sha256: manifest.clone(),
-            config_sha256: "c".repeat(64),
-            program_sha256: program.map(str::to_string),
-            program_version: "0.1.0".into(),
-            git_revision: "0123456789abcdef".into(),
-            converged: [8, 0, 0],
-            failed: 0,
-            stepping: "10 substeps".into(),
-            same_drapes: Vec::new(),
-        };
         let write_summary = |s: &DataSummary| {
             std::fs::create_dir_all(rec.join("data")).unwrap();
             std::fs::write(rec.join("data/shirt.json"), serde_json::to_vec(s).unwrap()).unwrap();
@@ -664,7 +669,7 @@ samples = 2
         let other = "d".repeat(64);
         // No record of the data yet: nothing to keep.
         assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
-        write_summary(&summary(Some(&made_by)));
+        write_summary(&summary("b", Some("a"), "c"));
         // Recorded, but nothing was evaluated on it: any build may make it.
         assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
         // An evaluation on those drapes: another build is refused, with the way to make
@@ -685,7 +690,7 @@ samples = 2
         assert_eq!(remake_differs(&p, &out, "shirt", Some(&made_by)), None);
         // The drapes made again by the same binary (a new manifest; the record keeps the
         // earlier one): the evaluations on the earlier manifest still count.
-        let mut again = summary(Some(&made_by));
+        let mut again = summary("b", Some("a"), "c");
         again.manifest_sha256 = "e".repeat(64);
         again.same_drapes = vec![manifest.clone()];
         write_summary(&again);
@@ -694,15 +699,15 @@ samples = 2
             e.contains("(manifest sha256 eeeeeeeeeeee = bbbbbbbbbbbb)"),
             "{e}"
         );
-        write_summary(&summary(Some(&made_by)));
+        write_summary(&summary("b", Some("a"), "c"));
         // Evaluated on other drapes, or a record that names no build, or the data there
         // already: nothing to keep.
         evaluated_on(&other);
         assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
         evaluated_on(&manifest);
-        write_summary(&summary(None));
+        write_summary(&summary("b", None, "c"));
         assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
-        write_summary(&summary(Some(&made_by)));
+        write_summary(&summary("b", Some("a"), "c"));
         std::fs::create_dir_all(out.join("data/shirt")).unwrap();
         std::fs::write(out.join("data/shirt/manifest.json"), "{}").unwrap();
         assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
@@ -710,18 +715,6 @@ samples = 2
 
     #[test]
     fn a_dataset_made_again_by_the_same_program_keeps_the_earlier_manifests() {
-        let summary = |manifest: &str, program: Option<&str>, config: &str| DataSummary {
-            config: "tiny".into(),
-            manifest_sha256: manifest.repeat(64),
-            config_sha256: config.repeat(64),
-            program_sha256: program.map(|p| p.repeat(64)),
-            program_version: "0.1.0".into(),
-            git_revision: "0123456789abcdef".into(),
-            converged: [8, 0, 0],
-            failed: 0,
-            stepping: "10 substeps".into(),
-            same_drapes: Vec::new(),
-        };
         let first = summary("1", Some("p"), "c");
         // The same program and config: the first manifest is kept, and a third
         // generation keeps both earlier ones.
