@@ -560,7 +560,8 @@ samples = 1
 
 /// `--only b` makes dataset b and trains and evaluates its run alone (on every thread: nothing
 /// is beside it), leaving dataset a, its run and its speed-up for a later invocation; the
-/// plan's evaluations are then not done. A key the plan lacks is refused, naming its keys.
+/// plan's evaluations are then not done. A key the plan lacks is refused, naming its keys,
+/// and so is a fine-tune whose base run trains on a dataset left out.
 #[test]
 fn reproduce_only_works_on_the_datasets_named() {
     let tmp = tempfile::tempdir().unwrap();
@@ -628,10 +629,9 @@ samples = 1
     let (ok, text) = reproduce("b");
     assert!(ok, "{text}");
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let threads = (cores / 2).max(1) * 2;
     assert!(
-        text.contains(&format!("== train b-naive on {threads} thread(s)")),
-        "the lone run takes both slots' threads: {text}"
+        text.contains(&format!("== train b-naive on {cores} thread(s)")),
+        "the lone run takes every core: {text}"
     );
     assert!(out.join("data/b/manifest.json").exists());
     assert!(out.join("eval/b-naive/metrics.json").exists());
@@ -652,13 +652,46 @@ samples = 1
     );
     assert!(ledger("seconds").get("gen a").is_none());
 
-    // The rest, later: b is not made again, a and its run and speed-up are.
-    let (ok, text) = reproduce("a");
+    // The rest, later: b and its run are not made again, a and its run and speed-up are.
+    let (ok, text) = reproduce("a,b");
     assert!(ok, "{text}");
-    assert!(!text.contains("== gen b"), "{text}");
+    assert!(
+        !text.contains("== gen b") && !text.contains("== train b-naive"),
+        "{text}"
+    );
+    assert!(text.contains("== train a-naive"), "{text}");
     assert!(out.join("eval/a-naive/metrics.json").exists());
     assert!(out.join("speedup/a-naive.json").exists());
     assert_eq!(ledger("done")["eval"], true);
+
+    // A fine-tune on b whose base trains on a, unfinished and left out, is refused before
+    // anything is made.
+    let plan = std::fs::read_to_string(dir.join("plan.toml")).unwrap();
+    let plan = plan.replace(
+        "[speedup]",
+        &format!(
+            "[[runs]]\nkey = \"b-tune\"\nconfig = \"{}/naive.toml\"\ndata = \"b\"\ninit = \"a-naive\"\nplanned_hours = 0.01\n\n[speedup]",
+            dir.display()
+        ),
+    );
+    std::fs::write(dir.join("plan.toml"), plan).unwrap();
+    let fresh = dir.join("fresh");
+    let (ok, text) = run(drape()
+        .arg("reproduce")
+        .arg(dir.join("plan.toml"))
+        .arg("-o")
+        .arg(&fresh)
+        .arg("--docs")
+        .arg(dir.join("docs"))
+        .arg("--only")
+        .arg("b"));
+    assert!(
+        !ok && text.contains(
+            "run b-tune starts from a-naive, which trains on dataset a and is not finished: add a to --only"
+        ),
+        "{text}"
+    );
+    assert!(!fresh.join("data/b").exists(), "{text}");
 }
 
 /// Writes the tiny training config as DIR/local.toml and its Naive twin as DIR/naive.toml;

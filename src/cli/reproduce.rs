@@ -56,7 +56,7 @@ pub struct ReproduceArgs {
         long,
         value_name = "KEY,...",
         value_delimiter = ',',
-        conflicts_with = "status"
+        conflicts_with_all = ["status", "report_only"]
     )]
     only: Vec<String>,
 }
@@ -453,17 +453,36 @@ fn stages(
         .iter()
         .filter(|k| runs.iter().any(|r| &&r.key == k))
         .collect();
+    // A fine-tune whose base run is on a dataset left out would never start.
+    for r in &runs {
+        if let Some(i) = &r.init
+            && !runs.iter().any(|b| &b.key == i)
+            && !finished_run(&run_dir(i))
+        {
+            let base = plan.runs.iter().find(|b| &b.key == i).expect("validated");
+            anyhow::bail!(
+                "--only: run {} starts from {}, which trains on dataset {} and is not finished: add {} to --only",
+                r.key,
+                i,
+                base.data,
+                base.data
+            );
+        }
+    }
     let eval_dir = |key: &str| out.join("eval").join(key);
     let speed_file = |key: &str| out.join("speedup").join(format!("{key}.json"));
-    // One stage on its own: skip it if `skip` says it is done, stop if over budget, time
-    // it into the ledger; it is done if `work` succeeds and `finished` finds its output.
+    // One stage on its own: skip it if `skip` says it is done (then it is done in the
+    // ledger if `done_if_skipped` says so), stop if over budget, time it into the ledger;
+    // it is done if `work` succeeds and `finished` finds its output.
     let stage = |name: &str,
                  skip: &dyn Fn() -> bool,
+                 done_if_skipped: &dyn Fn() -> bool,
                  finished: &dyn Fn() -> bool,
                  work: &mut dyn FnMut() -> anyhow::Result<()>|
      -> anyhow::Result<()> {
         if skip() {
-            lock(clock).ledger.done.insert(name.to_string(), true);
+            let done = done_if_skipped();
+            lock(clock).ledger.done.insert(name.to_string(), done);
             return Ok(());
         }
         over_budget(plan, clock, name)?;
@@ -530,7 +549,7 @@ fn stages(
             (lock(clock).ledger.done.get(&name) == Some(&true) && manifest())
                 || !eval::repro::record::data_needed(plan, out, &d.key)
         };
-        stage(&name, &passed, &manifest, &mut || {
+        stage(&name, &passed, &|| true, &manifest, &mut || {
             let a = gen_args(d, &dir, mixed_builds);
             let a: Vec<&std::ffi::OsStr> = a.iter().map(|x| x.as_os_str()).collect();
             child(ctx, &name, &a)
@@ -566,64 +585,69 @@ fn stages(
             .all(|r| eval_dir(&r.key).join("metrics.json").exists())
             && speedups.iter().all(|k| speed_file(k).exists())
     };
-    stage("eval", &evaluated, &evaluated, &mut || {
-        for r in &runs {
-            let e = eval_dir(&r.key);
-            if e.join("metrics.json").exists() {
-                continue;
-            }
-            let (rd, dd) = (run_dir(&r.key), data_dir(&r.data));
-            child(
-                ctx,
-                &format!("eval {}", r.key),
-                &[
-                    "eval".as_ref(),
-                    "--model".as_ref(),
-                    rd.as_os_str(),
-                    "--data".as_ref(),
-                    dd.as_os_str(),
-                    "-o".as_ref(),
-                    e.as_os_str(),
-                ],
-            )?;
-        }
-        std::fs::create_dir_all(out.join("speedup"))?;
-        for &k in &speedups {
-            let f = speed_file(k);
-            if f.exists() {
-                continue;
-            }
-            let r = plan.runs.iter().find(|r| &r.key == k).expect("validated");
-            let (rd, dd) = (run_dir(k), data_dir(&r.data));
-            let samples = plan.speedup.samples.to_string();
-            child(
-                ctx,
-                &format!("speedup {k}"),
-                &[
-                    "bench".as_ref(),
-                    "speedup".as_ref(),
-                    "--model".as_ref(),
-                    rd.as_os_str(),
-                    "--data".as_ref(),
-                    dd.as_os_str(),
-                    "--samples".as_ref(),
-                    samples.as_ref(),
-                    "--json".as_ref(),
-                    f.as_os_str(),
-                ],
-            )?;
-        }
-        Ok(())
-    })?;
-    if !only.is_empty() {
-        // The plan's evaluations are done only once those of the other datasets are too.
-        let all = plan
-            .runs
+    // With --only the plan's evaluations are done only once those of the other datasets'
+    // runs are too.
+    let all_evaluated = || {
+        plan.runs
             .iter()
             .all(|r| eval_dir(&r.key).join("metrics.json").exists())
-            && plan.speedup.runs.iter().all(|k| speed_file(k).exists());
-        lock(clock).ledger.done.insert("eval".to_string(), all);
-    }
+            && plan.speedup.runs.iter().all(|k| speed_file(k).exists())
+    };
+    stage(
+        "eval",
+        &evaluated,
+        &all_evaluated,
+        &all_evaluated,
+        &mut || {
+            for r in &runs {
+                let e = eval_dir(&r.key);
+                if e.join("metrics.json").exists() {
+                    continue;
+                }
+                let (rd, dd) = (run_dir(&r.key), data_dir(&r.data));
+                child(
+                    ctx,
+                    &format!("eval {}", r.key),
+                    &[
+                        "eval".as_ref(),
+                        "--model".as_ref(),
+                        rd.as_os_str(),
+                        "--data".as_ref(),
+                        dd.as_os_str(),
+                        "-o".as_ref(),
+                        e.as_os_str(),
+                    ],
+                )?;
+            }
+            std::fs::create_dir_all(out.join("speedup"))?;
+            for &k in &speedups {
+                let f = speed_file(k);
+                if f.exists() {
+                    continue;
+                }
+                let r = plan.runs.iter().find(|r| &r.key == k).expect("validated");
+                let (rd, dd) = (run_dir(k), data_dir(&r.data));
+                let samples = plan.speedup.samples.to_string();
+                child(
+                    ctx,
+                    &format!("speedup {k}"),
+                    &[
+                        "bench".as_ref(),
+                        "speedup".as_ref(),
+                        "--model".as_ref(),
+                        rd.as_os_str(),
+                        "--data".as_ref(),
+                        dd.as_os_str(),
+                        "--samples".as_ref(),
+                        samples.as_ref(),
+                        "--json".as_ref(),
+                        f.as_os_str(),
+                    ],
+                )?;
+            }
+            Ok(())
+        },
+    )?;
     Ok(())
 }
 
@@ -791,13 +815,13 @@ fn train_runs(
                 a.push(w.name().as_ref());
             }
             // The last run, with nothing beside it to train, evaluate or make, takes every
-            // slot's threads.
+            // core.
             let threads = if running.0.is_empty()
                 && pending.is_empty()
                 && to_eval.is_empty()
                 && fill.is_none()
             {
-                threads.map(|t| t * parallel)
+                threads.map(|_| std::thread::available_parallelism().map_or(1, |n| n.get()))
             } else {
                 threads
             };
