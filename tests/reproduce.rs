@@ -455,23 +455,10 @@ fn reproduce_makes_the_next_dataset_on_a_slot_the_runs_leave_free() {
     // epochs): its slot then makes dataset b.
     std::fs::write(
         dir.join("plan.toml"),
-        format!(
-            r#"name = "fill"
-budget_hours = 1.0
-eval_planned_hours = 0.01
-parallel_runs = 2
-
-[[datasets]]
-key = "a"
-config = "tiny"
-planned_hours = 0.01
-
-[[datasets]]
-key = "b"
-config = "tiny"
-planned_hours = 0.01
-
-[[runs]]
+        plan_on_a_and_b(
+            "fill",
+            &format!(
+                r#"[[runs]]
 key = "a-local"
 config = "{0}/local.toml"
 data = "a"
@@ -496,7 +483,8 @@ epochs = 1
 runs = []
 samples = 1
 "#,
-            dir.display()
+                dir.display()
+            ),
         ),
     )
     .unwrap();
@@ -569,23 +557,10 @@ fn reproduce_only_works_on_the_datasets_named() {
     tiny_configs(dir);
     std::fs::write(
         dir.join("plan.toml"),
-        format!(
-            r#"name = "only"
-budget_hours = 1.0
-eval_planned_hours = 0.01
-parallel_runs = 2
-
-[[datasets]]
-key = "a"
-config = "tiny"
-planned_hours = 0.01
-
-[[datasets]]
-key = "b"
-config = "tiny"
-planned_hours = 0.01
-
-[[runs]]
+        plan_on_a_and_b(
+            "only",
+            &format!(
+                r#"[[runs]]
 key = "a-naive"
 config = "{0}/naive.toml"
 data = "a"
@@ -603,7 +578,8 @@ epochs = 1
 runs = ["a-naive"]
 samples = 1
 "#,
-            dir.display()
+                dir.display()
+            ),
         ),
     )
     .unwrap();
@@ -692,6 +668,14 @@ samples = 1
         "{text}"
     );
     assert!(!fresh.join("data/b").exists(), "{text}");
+}
+
+/// A plan named `name` on two tiny datasets, `a` then `b`, followed by `rest` (its runs and
+/// speed-up).
+fn plan_on_a_and_b(name: &str, rest: &str) -> String {
+    format!(
+        "name = \"{name}\"\nbudget_hours = 1.0\neval_planned_hours = 0.01\nparallel_runs = 2\n\n[[datasets]]\nkey = \"a\"\nconfig = \"tiny\"\nplanned_hours = 0.01\n\n[[datasets]]\nkey = \"b\"\nconfig = \"tiny\"\nplanned_hours = 0.01\n\n{rest}"
+    )
 }
 
 /// Writes the tiny training config as DIR/local.toml and its Naive twin as DIR/naive.toml;
