@@ -580,19 +580,19 @@ fn stages(
         group = later;
     }
 
-    let evaluated = || {
+    // Whether these runs are evaluated and these speed-ups timed: the ones this invocation
+    // works on, and (with --only, for the ledger's `eval`) all of the plan's.
+    let evaluated_of = |runs: &[&PlanRun], speedups: &[&String]| {
         runs.iter()
             .all(|r| eval_dir(&r.key).join("metrics.json").exists())
             && speedups.iter().all(|k| speed_file(k).exists())
     };
-    // With --only the plan's evaluations are done only once those of the other datasets'
-    // runs are too.
-    let all_evaluated = || {
-        plan.runs
-            .iter()
-            .all(|r| eval_dir(&r.key).join("metrics.json").exists())
-            && plan.speedup.runs.iter().all(|k| speed_file(k).exists())
-    };
+    let (all_runs, all_speedups): (Vec<&PlanRun>, Vec<&String>) = (
+        plan.runs.iter().collect(),
+        plan.speedup.runs.iter().collect(),
+    );
+    let evaluated = || evaluated_of(&runs, &speedups);
+    let all_evaluated = || evaluated_of(&all_runs, &all_speedups);
     stage(
         "eval",
         &evaluated,
