@@ -548,8 +548,9 @@ samples = 1
 
 /// `--only b` makes dataset b and trains and evaluates its run alone (on every thread: nothing
 /// is beside it), leaving dataset a, its run and its speed-up for a later invocation; the
-/// plan's evaluations are then not done. A key the plan lacks is refused, naming its keys,
-/// and so is a fine-tune whose base run trains on a dataset left out.
+/// plan's evaluations are then not done, and no report is written. A key the plan lacks is
+/// refused, naming its keys, and so is a fine-tune still to train whose base run trains on
+/// a dataset left out.
 #[test]
 fn reproduce_only_works_on_the_datasets_named() {
     let tmp = tempfile::tempdir().unwrap();
@@ -627,6 +628,14 @@ samples = 1
         "a-naive is not evaluated yet"
     );
     assert!(ledger("seconds").get("gen a").is_none());
+    assert!(
+        text.contains("report not written: stages of datasets left out of --only are unfinished"),
+        "{text}"
+    );
+    assert!(
+        !dir.join("docs/reproduction.md").exists(),
+        "part of the plan writes no report"
+    );
 
     // The rest, later: b and its run are not made again, a and its run and speed-up are.
     let (ok, text) = reproduce("a,b");
@@ -639,6 +648,10 @@ samples = 1
     assert!(out.join("eval/a-naive/metrics.json").exists());
     assert!(out.join("speedup/a-naive.json").exists());
     assert_eq!(ledger("done")["eval"], true);
+    assert!(
+        dir.join("docs/reproduction.md").exists(),
+        "all of the plan done: the report is written: {text}"
+    );
 
     // A fine-tune on b whose base trains on a, unfinished and left out, is refused before
     // anything is made.
@@ -668,6 +681,29 @@ samples = 1
         "{text}"
     );
     assert!(!fresh.join("data/b").exists(), "{text}");
+    // The same fine-tune already trained needs nothing of its base: it is not refused.
+    // (b-naive's finished run stands in for it.)
+    let tune = fresh.join("runs/b-tune");
+    std::fs::create_dir_all(&tune).unwrap();
+    for f in std::fs::read_dir(out.join("runs/b-naive")).unwrap() {
+        let f = f.unwrap();
+        if f.file_type().unwrap().is_file() {
+            std::fs::copy(f.path(), tune.join(f.file_name())).unwrap();
+        }
+    }
+    let (ok, text) = run(drape()
+        .arg("reproduce")
+        .arg(dir.join("plan.toml"))
+        .arg("-o")
+        .arg(&fresh)
+        .arg("--docs")
+        .arg(dir.join("docs"))
+        .arg("--only")
+        .arg("b"));
+    assert!(ok, "{text}");
+    assert!(!text.contains("starts from a-naive"), "{text}");
+    assert!(fresh.join("eval/b-naive/metrics.json").exists(), "{text}");
+    assert!(fresh.join("eval/b-tune/metrics.json").exists(), "{text}");
 }
 
 /// A plan named `name` on two tiny datasets, `a` then `b`, followed by `rest` (its runs and

@@ -352,7 +352,13 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         };
         print!(
             "{}",
-            eval::repro::status::status(&plan, &args.plan, &folder, &ledger)
+            eval::repro::status::status(
+                &plan,
+                &args.plan,
+                &folder,
+                &ledger,
+                std::thread::available_parallelism().map_or(1, |n| n.get()),
+            )
         );
         return Ok(());
     }
@@ -420,6 +426,15 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
         .clone()
         .or_else(|| plan.docs.clone())
         .unwrap_or_else(|| PathBuf::from("docs"));
+    // Part of a plan does not overwrite the plan's report (the last one written, perhaps
+    // of a finished pass) with one of partial data.
+    if !args.only.is_empty() && !ledger.done.get("eval").copied().unwrap_or(false) {
+        println!(
+            "report not written: stages of datasets left out of --only are unfinished (`drape reproduce {} --report-only` writes the report of what is done)",
+            args.plan.display()
+        );
+        return Ok(());
+    }
     let written = eval::repro::write_report(&plan, &args.plan, &out, &ledger, &docs)?;
     for f in written {
         println!("wrote {}", f.display());
@@ -453,11 +468,12 @@ fn stages(
         .iter()
         .filter(|k| runs.iter().any(|r| &&r.key == k))
         .collect();
-    // A fine-tune whose base run is on a dataset left out would never start.
+    // A fine-tune still to train whose base run is on a dataset left out would never start.
     for r in &runs {
         if let Some(i) = &r.init
             && !runs.iter().any(|b| &b.key == i)
             && !finished_run(&run_dir(i))
+            && !finished_run(&run_dir(&r.key))
         {
             let base = plan.runs.iter().find(|b| &b.key == i).expect("validated");
             anyhow::bail!(

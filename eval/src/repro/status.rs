@@ -118,9 +118,31 @@ fn run_epochs(plan_epochs: Option<usize>, dir: &Path, config: &Path) -> Option<u
     })
 }
 
-/// The status of plan `plan` (loaded from `plan_path`) in working folder `out`, as text:
-/// a table of the stages and an estimate of the machine hours left.
-pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> String {
+/// The share of the machine's `cores` a training run under way last trained on: the
+/// threads in the last header `drape reproduce` wrote to its log `log` ("all" for every
+/// core); one slot's, `1 / parallel_runs`, when the log does not say.
+fn core_share(log: &Path, parallel_runs: usize, cores: usize) -> f64 {
+    let slot = 1.0 / parallel_runs.max(1) as f64;
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let threads = text.lines().rev().find_map(|l| {
+        l.strip_prefix("== drape train ")?
+            .strip_suffix(" threads, started by drape reproduce)")?
+            .rsplit_once(" (")
+            .map(|(_, n)| n.to_string())
+    });
+    match threads.as_deref() {
+        Some("all") => 1.0,
+        Some(n) => n
+            .parse::<usize>()
+            .map_or(slot, |n| (n as f64 / cores.max(1) as f64).min(1.0)),
+        None => slot,
+    }
+}
+
+/// The status of plan `plan` (loaded from `plan_path`) in working folder `out` on a
+/// machine of `cores` cores, as text: a table of the stages and an estimate of the
+/// machine hours left.
+pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger, cores: usize) -> String {
     let mut w = String::new();
     let done = |name: &str| ledger.done.get(name).copied().unwrap_or(false);
     // The evaluations made as runs finish ("eval KEY") count in the eval stage.
@@ -149,7 +171,10 @@ pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> Str
     )
     .unwrap();
     // Machine hours left: stages not begun at their planned hours, runs under way at
-    // their measured pace; training hours shared among the runs that train at once.
+    // their measured pace. Planned training hours are a slot's (one of `parallel_runs`
+    // training at once), so they are shared among the slots; a run under way counts its
+    // hours left at its pace times the share of the cores it trains on (`core_share`):
+    // the whole of them for a lone run on every core.
     let (mut left, mut left_training) = (0.0f64, 0.0f64);
     for d in &plan.datasets {
         let name = format!("gen {}", d.key);
@@ -220,8 +245,14 @@ pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> Str
             }
             Some(p) => {
                 let projected = p.projected_hours();
-                left_training +=
-                    projected.map_or((r.planned_hours - p.hours).max(0.0), |t| t - p.hours);
+                match projected {
+                    Some(t) => {
+                        let log = out.join("logs").join(format!("train-{}.log", r.key));
+                        left +=
+                            (t - p.hours).max(0.0) * core_share(&log, plan.parallel_runs, cores);
+                    }
+                    None => left_training += (r.planned_hours - p.hours).max(0.0),
+                }
                 let mut s = format!(
                     "epoch {} of {} under way, step {}",
                     (p.epochs_done + 1).min(p.epochs),
@@ -277,7 +308,7 @@ pub fn status(plan: &Plan, plan_path: &Path, out: &Path, ledger: &Ledger) -> Str
     left += left_training / plan.parallel_runs as f64;
     writeln!(
         w,
-        "\nabout {left:.1} machine hours left: the plan's hours for stages not begun, the pace so far for runs under way, {} training run(s) at once.",
+        "\nabout {left:.1} machine hours left: the plan's hours for stages not begun ({} training run(s) at once), the pace so far for runs under way (each at the share of the cores it trains on).",
         plan.parallel_runs
     )
     .unwrap();
@@ -304,12 +335,9 @@ mod tests {
         format!("1e-2,1e-3,1e-4,1e-2,1e-3,0,0,0,0,0,{edist}")
     }
 
-    #[test]
-    fn a_run_under_way_is_projected_from_its_pace() {
-        let tmp = tempfile::tempdir().unwrap();
-        let dir = tmp.path();
-        // Two epochs of 4 steps done at 900 s each, then 2 steps of the third; the second
-        // epoch's last step was redone after an interruption.
+    /// A run's steps.csv and log.csv: two epochs of 4 steps done at 900 s each, then 2
+    /// steps of the third; the second epoch's last step was redone after an interruption.
+    fn two_epochs_and_two_steps(dir: &Path) {
         let mut steps = String::from(HEADER) + "\n";
         let mut step = 0;
         for (epoch, batches) in [(0, 4), (1, 4)] {
@@ -331,6 +359,13 @@ mod tests {
             terms(3.0)
         );
         std::fs::write(dir.join("log.csv"), log).unwrap();
+    }
+
+    #[test]
+    fn a_run_under_way_is_projected_from_its_pace() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        two_epochs_and_two_steps(dir);
         let p = RunProgress::read(dir, 6).unwrap();
         assert_eq!(p.epochs_done, 2);
         assert_eq!(p.steps, 10);
@@ -412,7 +447,7 @@ samples = 1
         }
         let mut ledger = Ledger::default();
         ledger.seconds.insert("gen tshirt".into(), 360.0);
-        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
         assert!(
             text.contains(
                 "| gen tshirt | 0.50 | 0.10 | under way: 2 of 8 drapes, about 0.30 h left at this pace (resumes) |"
@@ -427,7 +462,7 @@ samples = 1
         assert!(text.contains("\nabout 0.7 machine hours left"), "{text}");
         // Under way with nothing made yet: the planned hours count.
         std::fs::remove_dir_all(&partial).unwrap();
-        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
         assert!(
             text.contains("| under way: 0 of 8 drapes (resumes) |"),
             "{text}"
@@ -441,7 +476,7 @@ samples = 1
         }
         ledger.seconds.insert("gen tshirt".into(), 540.0);
         ledger.lost.insert("gen tshirt".into(), 360.0);
-        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
         assert!(
             text.contains(
                 "| gen tshirt | 0.50 | 0.15 | under way: 2 of 8 drapes, about 0.15 h left at this pace (resumes) |"
@@ -450,10 +485,84 @@ samples = 1
         );
         // Drapes made but no hours since the loss yet: the planned hours count.
         ledger.seconds.insert("gen tshirt".into(), 360.0);
-        let text = status(&plan, Path::new("t.toml"), out, &ledger);
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
         assert!(
             text.contains("| gen tshirt | 0.50 | 0.10 | under way: 2 of 8 drapes (resumes) |"),
             "{text}"
         );
+    }
+
+    #[test]
+    fn a_run_under_way_counts_its_hours_at_the_share_of_the_cores_it_trains_on() {
+        let plan: Plan = toml::from_str(
+            r#"name = "t"
+budget_hours = 10.0
+eval_planned_hours = 0.1
+parallel_runs = 2
+datasets = []
+[[runs]]
+key = "a"
+config = "tiny.toml"
+data = "tshirt"
+planned_hours = 1.0
+epochs = 6
+[[runs]]
+key = "b"
+config = "tiny.toml"
+data = "tshirt"
+planned_hours = 1.0
+epochs = 6
+[[runs]]
+key = "c"
+config = "tiny.toml"
+data = "tshirt"
+planned_hours = 0.8
+epochs = 6
+[speedup]
+runs = []
+samples = 1
+"#,
+        )
+        .unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path();
+        let a = out.join("runs/a");
+        std::fs::create_dir_all(&a).unwrap();
+        two_epochs_and_two_steps(&a);
+        let ledger = Ledger::default();
+        let logs = out.join("logs");
+        std::fs::create_dir_all(&logs).unwrap();
+        let header = |key: &str, threads: &str| {
+            format!(
+                "\n== drape train c.toml --data d -o runs/{key} ({threads} threads, started by drape reproduce)\nepoch 1\n"
+            )
+        };
+        // a: 1.5 h in all at its pace, 0.625 h done, 0.875 h left; b and c not begun:
+        // (1.0 + 0.8) / 2 h; the evaluation's 0.1 h. With no log, a is taken to train in
+        // one of the 2 slots, its hours shared with the other slot's.
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
+        assert!(text.contains("; 1.50 h in all at this pace |"), "{text}");
+        assert!(text.contains("\nabout 1.4 machine hours left"), "{text}");
+        // a started on 1 thread, then resumed alone on both cores: its 0.875 h its own.
+        let a_log = logs.join("train-a.log");
+        std::fs::write(&a_log, header("a", "1") + &header("a", "2")).unwrap();
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
+        assert!(text.contains("\nabout 1.9 machine hours left"), "{text}");
+        // On a machine of 4 cores those 2 threads are half of it.
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 4);
+        assert!(text.contains("\nabout 1.4 machine hours left"), "{text}");
+        // b under way beside a at the same pace, one thread each: 1.75 h shared by the two.
+        std::fs::write(&a_log, header("a", "2") + &header("a", "1")).unwrap();
+        let b = out.join("runs/b");
+        std::fs::create_dir_all(&b).unwrap();
+        two_epochs_and_two_steps(&b);
+        std::fs::write(logs.join("train-b.log"), header("b", "1")).unwrap();
+        let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
+        assert!(text.contains("\nabout 1.4 machine hours left"), "{text}");
+        // A plan of one run at a time gives it every core ("all").
+        std::fs::write(&a_log, header("a", "all")).unwrap();
+        assert_eq!(core_share(&a_log, 2, 2), 1.0);
+        std::fs::write(&a_log, "no header\n").unwrap();
+        assert_eq!(core_share(&a_log, 4, 2), 0.25);
     }
 }
