@@ -664,6 +664,7 @@ samples = 1
         ),
     );
     std::fs::write(dir.join("plan.toml"), plan).unwrap();
+    let report = std::fs::read(dir.join("docs/reproduction.md")).unwrap();
     let fresh = dir.join("fresh");
     let (ok, text) = run(drape()
         .arg("reproduce")
@@ -702,8 +703,14 @@ samples = 1
         .arg("b"));
     assert!(ok, "{text}");
     assert!(!text.contains("starts from a-naive"), "{text}");
+    assert!(!text.contains("== train b-tune"), "finished: {text}");
     assert!(fresh.join("eval/b-naive/metrics.json").exists(), "{text}");
     assert!(fresh.join("eval/b-tune/metrics.json").exists(), "{text}");
+    assert_eq!(
+        std::fs::read(dir.join("docs/reproduction.md")).unwrap(),
+        report,
+        "the whole plan's report stays: {text}"
+    );
 }
 
 /// A plan named `name` on two tiny datasets, `a` then `b`, followed by `rest` (its runs and

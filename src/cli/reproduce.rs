@@ -430,8 +430,7 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
     // of a finished pass) with one of partial data.
     if !args.only.is_empty() && !ledger.done.get("eval").copied().unwrap_or(false) {
         println!(
-            "report not written: stages of datasets left out of --only are unfinished (`drape reproduce {} --report-only` writes the report of what is done)",
-            args.plan.display()
+            "report not written: stages of datasets left out of --only are unfinished (the same command with --report-only in place of --only writes the report of what is done)"
         );
         return Ok(());
     }

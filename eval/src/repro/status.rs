@@ -118,24 +118,28 @@ fn run_epochs(plan_epochs: Option<usize>, dir: &Path, config: &Path) -> Option<u
     })
 }
 
-/// The share of the machine's `cores` a training run under way last trained on: the
-/// threads in the last header `drape reproduce` wrote to its log `log` ("all" for every
-/// core); one slot's, `1 / parallel_runs`, when the log does not say.
+/// The share of the machine's hours a training run under way takes: all of them if it
+/// last started on every one of the `cores` (the lone run; "all" is the header of a child
+/// given no thread count), read from the last header `drape reproduce` wrote to its log
+/// `log`; else one slot's, `1 / parallel_runs` (also when the log does not say).
 fn core_share(log: &Path, parallel_runs: usize, cores: usize) -> f64 {
-    let slot = 1.0 / parallel_runs.max(1) as f64;
-    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let text = std::fs::read(log).unwrap_or_default();
+    let text = String::from_utf8_lossy(&text);
     let threads = text.lines().rev().find_map(|l| {
         l.strip_prefix("== drape train ")?
             .strip_suffix(" threads, started by drape reproduce)")?
             .rsplit_once(" (")
             .map(|(_, n)| n.to_string())
     });
-    match threads.as_deref() {
-        Some("all") => 1.0,
-        Some(n) => n
-            .parse::<usize>()
-            .map_or(slot, |n| (n as f64 / cores.max(1) as f64).min(1.0)),
-        None => slot,
+    let every_core = match threads.as_deref() {
+        Some("all") => true,
+        Some(n) => n.parse::<usize>().is_ok_and(|n| n >= cores),
+        None => false,
+    };
+    if every_core {
+        1.0
+    } else {
+        1.0 / parallel_runs.max(1) as f64
     }
 }
 
@@ -543,12 +547,12 @@ samples = 1
         let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
         assert!(text.contains("; 1.50 h in all at this pace |"), "{text}");
         assert!(text.contains("\nabout 1.4 machine hours left"), "{text}");
-        // a started on 1 thread, then resumed alone on both cores: its 0.875 h its own.
+        // a started on 1 thread, then resumed alone on both cores: its 0.875 h count in full.
         let a_log = logs.join("train-a.log");
         std::fs::write(&a_log, header("a", "1") + &header("a", "2")).unwrap();
         let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
         assert!(text.contains("\nabout 1.9 machine hours left"), "{text}");
-        // On a machine of 4 cores those 2 threads are half of it.
+        // On a machine of 4 cores those 2 threads are one of the 2 slots.
         let text = status(&plan, Path::new("t.toml"), out, &ledger, 4);
         assert!(text.contains("\nabout 1.4 machine hours left"), "{text}");
         // b under way beside a at the same pace, one thread each: 1.75 h shared by the two.
@@ -559,10 +563,16 @@ samples = 1
         std::fs::write(logs.join("train-b.log"), header("b", "1")).unwrap();
         let text = status(&plan, Path::new("t.toml"), out, &ledger, 2);
         assert!(text.contains("\nabout 1.4 machine hours left"), "{text}");
-        // A plan of one run at a time gives it every core ("all").
+        // A child given no thread count has every core ("all"); a log without a header,
+        // or one with bytes that are not UTF-8 before it, is read as far as it can be.
         std::fs::write(&a_log, header("a", "all")).unwrap();
         assert_eq!(core_share(&a_log, 2, 2), 1.0);
         std::fs::write(&a_log, "no header\n").unwrap();
         assert_eq!(core_share(&a_log, 4, 2), 0.25);
+        let mut bytes = b"progress \xff\xfe\n".to_vec();
+        bytes.extend(header("a", "3").into_bytes());
+        std::fs::write(&a_log, bytes).unwrap();
+        assert_eq!(core_share(&a_log, 3, 3), 1.0);
+        assert_eq!(core_share(&a_log, 3, 4), 1.0 / 3.0);
     }
 }
