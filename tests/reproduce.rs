@@ -585,17 +585,19 @@ samples = 1
     )
     .unwrap();
     let out = dir.join("out");
-    let reproduce = |only: &str| {
+    // `drape reproduce --only ONLY` of the plan into working folder `into`.
+    let reproduce_into = |into: &Path, only: &str| {
         run(drape()
             .arg("reproduce")
             .arg(dir.join("plan.toml"))
             .arg("-o")
-            .arg(&out)
+            .arg(into)
             .arg("--docs")
             .arg(dir.join("docs"))
             .arg("--only")
             .arg(only))
     };
+    let reproduce = |only: &str| reproduce_into(&out, only);
     let (ok, text) = reproduce("zz");
     assert!(
         !ok && text.contains("has no dataset \"zz\" (its datasets: a, b)"),
@@ -666,15 +668,7 @@ samples = 1
     std::fs::write(dir.join("plan.toml"), plan).unwrap();
     let report = std::fs::read(dir.join("docs/reproduction.md")).unwrap();
     let fresh = dir.join("fresh");
-    let (ok, text) = run(drape()
-        .arg("reproduce")
-        .arg(dir.join("plan.toml"))
-        .arg("-o")
-        .arg(&fresh)
-        .arg("--docs")
-        .arg(dir.join("docs"))
-        .arg("--only")
-        .arg("b"));
+    let (ok, text) = reproduce_into(&fresh, "b");
     assert!(
         !ok && text.contains(
             "run b-tune starts from a-naive, which trains on dataset a and is not finished: add a to --only"
@@ -692,15 +686,7 @@ samples = 1
             std::fs::copy(f.path(), tune.join(f.file_name())).unwrap();
         }
     }
-    let (ok, text) = run(drape()
-        .arg("reproduce")
-        .arg(dir.join("plan.toml"))
-        .arg("-o")
-        .arg(&fresh)
-        .arg("--docs")
-        .arg(dir.join("docs"))
-        .arg("--only")
-        .arg("b"));
+    let (ok, text) = reproduce_into(&fresh, "b");
     assert!(ok, "{text}");
     assert!(!text.contains("starts from a-naive"), "{text}");
     assert!(!text.contains("== train b-tune"), "finished: {text}");
