@@ -1879,15 +1879,23 @@ pub fn write_report(
             .filter(|(k, _)| **k == stage || (stage == "eval" && k.starts_with("eval ")))
             .map(|(_, s)| *s)
             .reduce(|a, b| a + b);
+        let done = if ledger.done.get(&stage).copied().unwrap_or(false) {
+            "yes"
+        } else {
+            "no"
+        };
+        // A dataset's drapes that a lost machine took along count in its hours: say so.
+        let lost = match ledger.lost.get(&stage) {
+            Some(s) if *s > 0.0 => format!(
+                "; {:.2} h of it lost with a machine, its drapes made again",
+                s / 3600.0
+            ),
+            _ => String::new(),
+        };
         writeln!(
             w,
-            "| {stage} | {planned:.2} | {} | {} |",
+            "| {stage} | {planned:.2} | {} | {done}{lost} |",
             fmt(seconds.map(|s| s / 3600.0), 2),
-            if ledger.done.get(&stage).copied().unwrap_or(false) {
-                "yes"
-            } else {
-                "no"
-            }
         )
         .unwrap();
     }
@@ -2481,6 +2489,52 @@ samples = 1
         );
         // The baselines have the sweater's column only.
         assert!(md.contains("| method | Sweater |"), "{md}");
+    }
+
+    #[test]
+    fn the_budget_table_says_which_hours_a_lost_machine_took() {
+        let plan: Plan = toml::from_str(
+            r#"name = "lost"
+budget_hours = 1.0
+eval_planned_hours = 0.1
+runs = []
+[[datasets]]
+key = "sweater"
+config = "cpu-reference-sweater"
+planned_hours = 0.1
+[[datasets]]
+key = "dress"
+config = "cpu-reference-dress"
+planned_hours = 0.2
+[speedup]
+runs = []
+samples = 1
+"#,
+        )
+        .unwrap();
+        plan.validate().unwrap();
+        let (dir, _) = scratch(&plan.name);
+        let out = dir.path().to_path_buf();
+        let docs = out.join("docs");
+        let mut ledger = Ledger {
+            machine_seconds: 2700.0,
+            ..Default::default()
+        };
+        ledger.seconds.insert("gen sweater".into(), 1800.0);
+        ledger.seconds.insert("gen dress".into(), 900.0);
+        ledger.done.insert("gen sweater".into(), true);
+        ledger.lost.insert("gen sweater".into(), 720.0);
+        write_report(&plan, Path::new("plan.toml"), &out, &ledger, &docs).unwrap();
+        let md = std::fs::read_to_string(docs.join("reproduction.md")).unwrap();
+        assert!(
+            md.contains("| gen sweater | 0.10 | 0.50 | yes; 0.20 h of it lost with a machine, its drapes made again |"),
+            "{md}"
+        );
+        assert!(md.contains("| gen dress | 0.20 | 0.25 | no |"), "{md}");
+        assert!(
+            md.contains("| machine total | 0.40 | 0.75 | budget 1 h |"),
+            "{md}"
+        );
     }
 
     #[test]
