@@ -2434,18 +2434,17 @@ samples = 1
 
     /// The reproduction.md that `plan` (validated here) writes before any stage has run.
     fn report_before_any_stage(plan: &Plan) -> String {
+        report_from_ledger(plan, &Ledger::default())
+    }
+
+    /// The reproduction.md that `plan` (validated here) writes from `ledger` alone, in an
+    /// empty working folder.
+    fn report_from_ledger(plan: &Plan, ledger: &Ledger) -> String {
         plan.validate().unwrap();
         let (dir, _) = scratch(&plan.name);
         let out = dir.path().to_path_buf();
         let docs = out.join("docs");
-        write_report(
-            plan,
-            Path::new("plan.toml"),
-            &out,
-            &Ledger::default(),
-            &docs,
-        )
-        .unwrap();
+        write_report(plan, Path::new("plan.toml"), &out, ledger, &docs).unwrap();
         std::fs::read_to_string(docs.join("reproduction.md")).unwrap()
     }
 
@@ -2512,10 +2511,6 @@ samples = 1
 "#,
         )
         .unwrap();
-        plan.validate().unwrap();
-        let (dir, _) = scratch(&plan.name);
-        let out = dir.path().to_path_buf();
-        let docs = out.join("docs");
         let mut ledger = Ledger {
             machine_seconds: 2700.0,
             ..Default::default()
@@ -2524,8 +2519,7 @@ samples = 1
         ledger.seconds.insert("gen dress".into(), 900.0);
         ledger.done.insert("gen sweater".into(), true);
         ledger.lost.insert("gen sweater".into(), 720.0);
-        write_report(&plan, Path::new("plan.toml"), &out, &ledger, &docs).unwrap();
-        let md = std::fs::read_to_string(docs.join("reproduction.md")).unwrap();
+        let md = report_from_ledger(&plan, &ledger);
         assert!(
             md.contains("| gen sweater | 0.10 | 0.50 | yes; 0.20 h of it lost with a machine, its drapes made again |"),
             "{md}"
