@@ -1879,16 +1879,18 @@ pub fn write_report(
             .filter(|(k, _)| **k == stage || (stage == "eval" && k.starts_with("eval ")))
             .map(|(_, s)| *s)
             .reduce(|a, b| a + b);
-        let done = if ledger.done.get(&stage).copied().unwrap_or(false) {
-            "yes"
-        } else {
-            "no"
-        };
+        let finished = ledger.done.get(&stage).copied().unwrap_or(false);
+        let done = if finished { "yes" } else { "no" };
         // A dataset's drapes that a lost machine took along count in its hours: say so.
         let lost = match ledger.lost.get(&stage) {
             Some(s) if *s > 0.0 => format!(
-                "; {:.2} h of it lost with a machine, its drapes made again",
-                s / 3600.0
+                "; {:.2} h of it lost with a machine, its drapes {}",
+                s / 3600.0,
+                if finished {
+                    "made again"
+                } else {
+                    "to be made again"
+                }
             ),
             _ => String::new(),
         };
@@ -2525,6 +2527,13 @@ samples = 1
             "{md}"
         );
         assert!(md.contains("| gen dress | 0.20 | 0.25 | no |"), "{md}");
+        // Lost and not yet made again (a fresh folder's report before the stage resumes).
+        ledger.lost.insert("gen dress".into(), 900.0);
+        let md = report_from_ledger(&plan, &ledger);
+        assert!(
+            md.contains("| gen dress | 0.20 | 0.25 | no; 0.25 h of it lost with a machine, its drapes to be made again |"),
+            "{md}"
+        );
         assert!(
             md.contains("| machine total | 0.40 | 0.75 | budget 1 h |"),
             "{md}"
