@@ -2450,9 +2450,9 @@ samples = 1
         std::fs::read_to_string(docs.join("reproduction.md")).unwrap()
     }
 
-    #[test]
-    fn a_plan_without_the_tshirt_points_to_the_claims_and_names_what_it_leaves_out() {
-        let plan: Plan = toml::from_str(
+    /// A plan of the sweater alone: its dataset and GarNet-Local on it, 0.1 h each.
+    fn sweater_plan() -> Plan {
+        toml::from_str(
             r#"name = "garments"
 budget_hours = 1.0
 eval_planned_hours = 0.1
@@ -2471,7 +2471,12 @@ runs = ["sweater-local"]
 samples = 1
 "#,
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    #[test]
+    fn a_plan_without_the_tshirt_points_to_the_claims_and_names_what_it_leaves_out() {
+        let plan = sweater_plan();
         assert_eq!(plan.docs.as_deref(), Some(Path::new("elsewhere")));
         let md = report_before_any_stage(&plan);
         assert!(md.contains("does not train `tshirt-local`"), "{md}");
@@ -2494,31 +2499,13 @@ samples = 1
 
     #[test]
     fn the_budget_table_says_which_hours_a_lost_machine_took() {
-        let plan: Plan = toml::from_str(
-            r#"name = "lost"
-budget_hours = 1.0
-eval_planned_hours = 0.1
-runs = []
-[[datasets]]
-key = "sweater"
-config = "cpu-reference-sweater"
-planned_hours = 0.1
-[[datasets]]
-key = "dress"
-config = "cpu-reference-dress"
-planned_hours = 0.2
-[speedup]
-runs = []
-samples = 1
-"#,
-        )
-        .unwrap();
+        let plan = sweater_plan();
         let mut ledger = Ledger {
             machine_seconds: 2700.0,
             ..Default::default()
         };
         ledger.seconds.insert("gen sweater".into(), 1800.0);
-        ledger.seconds.insert("gen dress".into(), 900.0);
+        ledger.seconds.insert("train sweater-local".into(), 900.0);
         ledger.done.insert("gen sweater".into(), true);
         ledger.lost.insert("gen sweater".into(), 720.0);
         let md = report_from_ledger(&plan, &ledger);
@@ -2526,16 +2513,19 @@ samples = 1
             md.contains("| gen sweater | 0.10 | 0.50 | yes; 0.20 h of it lost with a machine, its drapes made again |"),
             "{md}"
         );
-        assert!(md.contains("| gen dress | 0.20 | 0.25 | no |"), "{md}");
+        assert!(
+            md.contains("| train sweater-local | 0.10 | 0.25 | no |"),
+            "{md}"
+        );
         // Lost and not yet made again (a fresh folder's report before the stage resumes).
-        ledger.lost.insert("gen dress".into(), 900.0);
+        ledger.done.insert("gen sweater".into(), false);
         let md = report_from_ledger(&plan, &ledger);
         assert!(
-            md.contains("| gen dress | 0.20 | 0.25 | no; 0.25 h of it lost with a machine, its drapes to be made again |"),
+            md.contains("| gen sweater | 0.10 | 0.50 | no; 0.20 h of it lost with a machine, its drapes to be made again |"),
             "{md}"
         );
         assert!(
-            md.contains("| machine total | 0.40 | 0.75 | budget 1 h |"),
+            md.contains("| machine total | 0.30 | 0.75 | budget 1 h |"),
             "{md}"
         );
     }
