@@ -1302,13 +1302,13 @@ fn shortfalls(
                     text += &format!(
                         " (at this run's pace, {pace}, about {machine:.0} machine hours): an extrapolation, not a measurement"
                     );
-                    text += &if machine > budget_hours {
-                        format!(
+                    if machine > budget_hours {
+                        text += &format!(
                             ", and beyond the {budget_hours:.0} machine hours this plan may spend."
-                        )
+                        );
                     } else {
-                        ".".into()
-                    };
+                        text += ".";
+                    }
                 }
                 None => text += ": an extrapolation, not a measurement.",
             }
@@ -2332,8 +2332,8 @@ samples = 1
             why[0]
         );
         // 2.2 cm is 6 doublings of 0.2 cm from 1 cm: 64 times the run's 1 machine hour (2 h on
-        // one of 2 runs at once), over the
-        // budget; the kernel map, closer than the network, says the inputs hold more.
+        // one of 2 runs at once), over the budget; the kernel map, closer than the network,
+        // says the inputs hold more.
         assert!(why[1].starts_with("**Edist < 1 cm and Enorm < 12°.** GarNet-Local reaches 2.20 cm and 16.70° on the 3k T-shirt. On the 3k T-shirt's test drapes the kernel map"), "{}", why[1]);
         assert!(
             why[1].contains(
