@@ -1061,6 +1061,38 @@ fn compare_pairs_two_evaluations_by_sample() {
     std::fs::write(&b, with_provenance("77d54b0123456789", "test")).unwrap();
     let o = drape(&["compare", a_s, bs]);
     assert!(o.status.success(), "{}", stderr(&o));
+
+    // A reproduction record that lists a manifest as the same drapes made again pairs the
+    // two; a manifest it does not list stays other drapes.
+    let record = dir.path().join("record");
+    std::fs::create_dir_all(record.join("data")).unwrap();
+    std::fs::write(
+        record.join("data/tshirt.json"),
+        r#"{"config": "tiny", "manifest_sha256": "77d54b0123456789", "config_sha256": "c",
+            "program_sha256": "p", "program_version": "0.1.0", "git_revision": "g",
+            "converged": [3, 0, 3], "failed": 0, "stepping": "s",
+            "same_drapes": ["4a29f60123456789"]}"#,
+    )
+    .unwrap();
+    let r_s = record.to_str().unwrap();
+    std::fs::write(&b, with_provenance("4a29f60123456789", "test")).unwrap();
+    let o = drape(&["compare", a_s, bs, "--record", r_s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(&b, with_provenance("4a29f60123456789", "val")).unwrap();
+    err(
+        &["compare", a_s, bs, "--record", r_s],
+        "on the val split of 4a29f6012345",
+    );
+    std::fs::write(&b, with_provenance("9e1f000123456789", "test")).unwrap();
+    err(
+        &["compare", a_s, bs, "--record", r_s],
+        "on the test split of 9e1f00012345...: these are different drapes",
+    );
+    std::fs::write(record.join("data/tshirt.json"), "{}").unwrap();
+    err(
+        &["compare", a_s, bs, "--record", r_s],
+        "not a dataset summary of a reproduction record",
+    );
 }
 
 /// Drapes `garment` at 3k on check sample `seed` with crease contacts on or off and

@@ -320,6 +320,53 @@ samples = 1
     );
     assert!(!dir.join("lost").exists());
 
+    // The recorded drapes made again by the same binary from the same config: another
+    // manifest (it records timings), the same drapes. `drape compare` pairs an evaluation on
+    // them with the recorded one only given the record, which names the program and config.
+    let again = dir.join("again");
+    let (ok, text) = run(drape().arg("gen").arg("tiny").arg("-o").arg(&again));
+    assert!(ok, "{text}");
+    let manifest = |d: &Path| std::fs::read(d.join("manifest.json")).unwrap();
+    assert_ne!(manifest(&again), manifest(&out.join("data/tshirt")));
+    let eval_again = dir.join("eval-again");
+    let (ok, text) = run(drape()
+        .arg("eval")
+        .arg("--model")
+        .arg(out.join("runs/tshirt-local"))
+        .arg("--data")
+        .arg(&again)
+        .arg("-o")
+        .arg(&eval_again));
+    assert!(ok, "{text}");
+    let recorded_eval = record.join("eval/tshirt-local/metrics.json");
+    let compare = |with_record: bool| {
+        let mut c = drape();
+        c.arg("compare").arg(&eval_again).arg(&recorded_eval);
+        if with_record {
+            c.arg("--record").arg(&record);
+        }
+        run(&mut c)
+    };
+    let (ok, text) = compare(false);
+    assert!(!ok && text.contains("these are different drapes"), "{text}");
+    let (ok, text) = compare(true);
+    assert!(ok, "{text}");
+    // The same network on the same drapes: no difference beyond the record's rounding.
+    let edist = text
+        .lines()
+        .find(|l| l.starts_with("| Edist (cm) | "))
+        .unwrap_or_else(|| panic!("no Edist row: {text}"));
+    let mean_difference: f64 = edist.split('|').nth(5).unwrap().trim().parse().unwrap();
+    assert!(mean_difference.abs() < 1e-4, "{edist}");
+    // A folder that is no record is refused.
+    let (ok, text) = run(drape()
+        .arg("compare")
+        .arg(&eval_again)
+        .arg(&recorded_eval)
+        .arg("--record")
+        .arg(dir.join("no-record")));
+    assert!(!ok && text.contains("not a record folder"), "{text}");
+
     // --status reads the folder and writes nothing: every stage done, the runs' epochs
     // and validation Edist, no hours left.
     let before = std::fs::read(out.join("stages.json")).unwrap();

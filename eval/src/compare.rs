@@ -61,26 +61,109 @@ fn read_metrics(path: &Path) -> Result<(PathBuf, serde_json::Value), EvalError> 
 }
 
 /// The drapes an evaluation was made on, from the provenance `drape eval` writes into its
-/// `metrics.json`: the dataset manifest's sha256 and the split. `None` for a file without
-/// one (the run records in `docs/eval/`).
-fn evaluated_on(path: &Path) -> Result<Option<(String, String)>, EvalError> {
+/// `metrics.json`: the dataset manifest's sha256, the split, and the data folder it named.
+/// `None` for a file without one (the run records in `docs/eval/`).
+fn evaluated_on(path: &Path) -> Result<Option<(String, String, Option<PathBuf>)>, EvalError> {
     let (_, v) = read_metrics(path)?;
     let p = &v["provenance"];
     Ok(p["manifest_sha256"]
         .as_str()
         .zip(p["split"].as_str())
-        .map(|(m, s)| (m.to_string(), s.to_string())))
+        .map(|(m, s)| {
+            let data = p["data"].as_str().map(PathBuf::from);
+            (m.to_string(), s.to_string(), data)
+        }))
+}
+
+/// Which dataset manifests hold the same drapes, from a `drape reproduce` record folder
+/// (`docs/reproduction-record/PLAN`): each of its `data/KEY.json` names the manifest of the
+/// drapes its runs were evaluated on and, under `same_drapes`, the manifests of the same
+/// drapes made again (one binary drapes the same bytes from one config; the manifests
+/// differ only in the timings they record). Without a record, only equal manifests match.
+#[derive(Debug, Default)]
+pub struct SameDrapes {
+    /// The recorded datasets.
+    recorded: Vec<crate::repro::record::DataSummary>,
+}
+
+impl SameDrapes {
+    /// The datasets recorded in the record folder `dir` (its `data/*.json`).
+    pub fn from_record(dir: &Path) -> Result<Self, EvalError> {
+        let data = dir.join("data");
+        let entries = std::fs::read_dir(&data).map_err(|e| {
+            EvalError::Invalid(format!(
+                "{}: not a record folder of `drape reproduce` (no data/ folder: {e})",
+                dir.display()
+            ))
+        })?;
+        let mut recorded = Vec::new();
+        for entry in entries {
+            let path = entry
+                .map_err(|e| EvalError::Invalid(format!("cannot list {}: {e}", data.display())))?
+                .path();
+            if path.extension().is_some_and(|x| x == "json") {
+                let bytes = std::fs::read(&path).map_err(|e| {
+                    EvalError::Invalid(format!("cannot read {}: {e}", path.display()))
+                })?;
+                recorded.push(serde_json::from_slice(&bytes).map_err(|e| {
+                    EvalError::Invalid(format!(
+                        "{}: not a dataset summary of a reproduction record: {e}",
+                        path.display()
+                    ))
+                })?);
+            }
+        }
+        if recorded.is_empty() {
+            return Err(EvalError::Invalid(format!(
+                "{} records no dataset",
+                data.display()
+            )));
+        }
+        Ok(Self { recorded })
+    }
+
+    /// The manifest that stands for the drapes of manifest `m`: the recorded manifest if the
+    /// record lists `m` (as it or under `same_drapes`), or if `m` is the manifest in the data
+    /// folder `data` and that dataset was made by the recorded program from the recorded
+    /// config (a working folder made again after the record was written); else `m`.
+    fn standing_for(&self, m: &str, data: Option<&Path>) -> Result<String, EvalError> {
+        for r in &self.recorded {
+            if r.manifest_sha256 == m || r.same_drapes.iter().any(|s| s == m) {
+                return Ok(r.manifest_sha256.clone());
+            }
+        }
+        let Some(data) = data else {
+            return Ok(m.to_string());
+        };
+        for r in &self.recorded {
+            let live =
+                crate::repro::record::DataSummary::read(&r.config, &data.join("manifest.json"))?;
+            if let Some(live) = live
+                && live.manifest_sha256 == m
+                && live
+                    .clone()
+                    .after(Some(r.clone()))
+                    .same_drapes
+                    .contains(&r.manifest_sha256)
+            {
+                return Ok(r.manifest_sha256.clone());
+            }
+        }
+        Ok(m.to_string())
+    }
 }
 
 /// Refuses to pair two evaluations whose provenance names different drapes: another
-/// dataset (its manifest's sha256) or another split. Sample ids repeat across datasets
-/// and splits, so matching ids alone do not make the drapes the same. Evaluations without
-/// a provenance pass.
-pub fn check_same_drapes(a: &Path, b: &Path) -> Result<(), EvalError> {
-    if let (Some((ma, sa)), Some((mb, sb))) = (evaluated_on(a)?, evaluated_on(b)?) {
-        if (&ma, &sa) != (&mb, &sb) {
+/// dataset (its manifest's sha256; `same` says which manifests hold the same drapes) or
+/// another split. Sample ids repeat across datasets and splits, so matching ids alone do
+/// not make the drapes the same. Evaluations without a provenance pass.
+pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), EvalError> {
+    if let (Some((ma, sa, da)), Some((mb, sb, db))) = (evaluated_on(a)?, evaluated_on(b)?) {
+        let ka = same.standing_for(&ma, da.as_deref())?;
+        let kb = same.standing_for(&mb, db.as_deref())?;
+        if (&ka, &sa) != (&kb, &sb) {
             return Err(EvalError::Invalid(format!(
-                "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset (a dataset made again by the same binary has the same drapes under another manifest sha256, as its manifest records timings: `drape reproduce` pairs such evaluations when its record lists the earlier manifest under `same_drapes`)",
+                "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program it records)",
                 a.display(),
                 dataset::manifest::short_hex(&ma),
                 b.display(),

@@ -118,13 +118,22 @@ pub struct CompareArgs {
     /// Also write the comparison as JSON to this file.
     #[arg(long, value_name = "FILE.json")]
     json: Option<PathBuf>,
+    /// A `drape reproduce` record folder (docs/reproduction-record/PLAN): evaluations on
+    /// manifests it lists as the same drapes pair, and so do evaluations on a data folder
+    /// made again by the program and config it records (whose manifest differs in timings).
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
 }
 
 /// Runs `drape compare`.
 pub fn compare(args: CompareArgs) -> anyhow::Result<()> {
     let mb = args.method_b.as_deref().unwrap_or(&args.method);
     super::check_outputs(&[args.json.as_deref()])?;
-    eval::compare::check_same_drapes(&args.a, &args.b)?;
+    let same = match &args.record {
+        Some(dir) => eval::compare::SameDrapes::from_record(dir)?,
+        None => eval::compare::SameDrapes::default(),
+    };
+    eval::compare::check_same_drapes(&args.a, &args.b, &same)?;
     let (a, b) = (
         eval::compare::load(&args.a, &args.method)?,
         eval::compare::load(&args.b, mb)?,
