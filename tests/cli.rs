@@ -1088,6 +1088,12 @@ fn compare_pairs_two_evaluations_by_sample() {
         &["compare", a_s, bs, "--record", r_s],
         "on the test split of 9e1f00012345...: these are different drapes",
     );
+    std::fs::rename(
+        record.join("data/tshirt.json"),
+        record.join("data/tshirt.txt"),
+    )
+    .unwrap();
+    err(&["compare", a_s, bs, "--record", r_s], "records no dataset");
     std::fs::write(record.join("data/tshirt.json"), "{}").unwrap();
     err(
         &["compare", a_s, bs, "--record", r_s],

@@ -358,6 +358,43 @@ samples = 1
         .unwrap_or_else(|| panic!("no Edist row: {text}"));
     let mean_difference: f64 = edist.split('|').nth(5).unwrap().trim().parse().unwrap();
     assert!(mean_difference.abs() < 1e-4, "{edist}");
+    // The data folder must still hold the manifest evaluated...
+    let again_manifest = again.join("manifest.json");
+    let kept = std::fs::read(&again_manifest).unwrap();
+    std::fs::write(&again_manifest, [kept.as_slice(), b"\n"].concat()).unwrap();
+    let (ok, text) = compare(true);
+    assert!(
+        !ok && text.contains("is no longer the manifest evaluated"),
+        "{text}"
+    );
+    std::fs::write(&again_manifest, &kept).unwrap();
+    // ...made from the recorded config: the same manifest with another config's sha256,
+    // evaluated (its provenance) on a folder of its own, is other drapes.
+    let other = dir.join("other-data");
+    std::fs::create_dir_all(&other).unwrap();
+    let mut m: serde_json::Value = serde_json::from_slice(&kept).unwrap();
+    m["config_sha256"] = serde_json::json!("0".repeat(64));
+    std::fs::write(other.join("manifest.json"), serde_json::to_vec(&m).unwrap()).unwrap();
+    let other_sha = eval::repro::record::DataSummary::read("", &other.join("manifest.json"))
+        .unwrap()
+        .unwrap()
+        .manifest_sha256;
+    let mut e: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(eval_again.join("metrics.json")).unwrap()).unwrap();
+    e["provenance"]["manifest_sha256"] = serde_json::json!(other_sha);
+    e["provenance"]["data"] = serde_json::json!(other.to_str().unwrap());
+    let other_eval = dir.join("other-eval.json");
+    std::fs::write(&other_eval, serde_json::to_vec(&e).unwrap()).unwrap();
+    let (ok, text) = run(drape()
+        .arg("compare")
+        .arg(&other_eval)
+        .arg(&recorded_eval)
+        .arg("--record")
+        .arg(&record));
+    assert!(
+        !ok && text.contains("records no program and config the record does"),
+        "{text}"
+    );
     // A folder that is no record is refused.
     let (ok, text) = run(drape()
         .arg("compare")

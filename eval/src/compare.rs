@@ -4,7 +4,7 @@
 //! of the per-drape differences is far smaller than either run's spread: a gap of 0.02 cm
 //! between two means of 1.7 ± 0.4 cm can be 3 standard errors.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -92,7 +92,7 @@ impl SameDrapes {
         let data = dir.join("data");
         let entries = std::fs::read_dir(&data).map_err(|e| {
             EvalError::Invalid(format!(
-                "{}: not a record folder of `drape reproduce` (no data/ folder: {e})",
+                "{}: not a record folder of `drape reproduce` (cannot list its data/ folder: {e})",
                 dir.display()
             ))
         })?;
@@ -122,34 +122,55 @@ impl SameDrapes {
         Ok(Self { recorded })
     }
 
-    /// The manifest that stands for the drapes of manifest `m`: the recorded manifest if the
-    /// record lists `m` (as it or under `same_drapes`), or if `m` is the manifest in the data
-    /// folder `data` and that dataset was made by the recorded program from the recorded
-    /// config (a working folder made again after the record was written); else `m`.
-    fn standing_for(&self, m: &str, data: Option<&Path>) -> Result<String, EvalError> {
-        for r in &self.recorded {
-            if r.manifest_sha256 == m || r.same_drapes.iter().any(|s| s == m) {
-                return Ok(r.manifest_sha256.clone());
-            }
-        }
-        let Some(data) = data else {
-            return Ok(m.to_string());
+    /// The recorded datasets whose drapes an evaluation on manifest `m` holds (their
+    /// recorded manifests): those that list `m` (as theirs or under `same_drapes`), and, if
+    /// the data folder `data` the evaluation named still holds manifest `m`, those whose
+    /// config and program its manifest records (a working folder made again after the
+    /// record was written: [`crate::repro::record::DataSummary::after`]). Beside them, why
+    /// the data folder did not count, for the error message.
+    fn recorded_as(
+        &self,
+        m: &str,
+        data: Option<&Path>,
+    ) -> Result<(BTreeSet<String>, Option<String>), EvalError> {
+        let mut out: BTreeSet<String> = self
+            .recorded
+            .iter()
+            .filter(|r| r.manifest_sha256 == m || r.same_drapes.iter().any(|s| s == m))
+            .map(|r| r.manifest_sha256.clone())
+            .collect();
+        let Some(data) = data.filter(|_| !self.recorded.is_empty()) else {
+            return Ok((out, None));
         };
-        for r in &self.recorded {
-            let live =
-                crate::repro::record::DataSummary::read(&r.config, &data.join("manifest.json"))?;
-            if let Some(live) = live
-                && live.manifest_sha256 == m
-                && live
-                    .clone()
-                    .after(Some(r.clone()))
-                    .same_drapes
-                    .contains(&r.manifest_sha256)
-            {
-                return Ok(r.manifest_sha256.clone());
+        let file = data.join("manifest.json");
+        let why = match crate::repro::record::DataSummary::read("", &file)? {
+            None => Some(format!("{} is gone", file.display())),
+            Some(live) if live.manifest_sha256 != m => Some(format!(
+                "{} is no longer the manifest evaluated",
+                file.display()
+            )),
+            Some(live) => {
+                let before = out.len();
+                out.extend(
+                    self.recorded
+                        .iter()
+                        .filter(|r| {
+                            live.clone()
+                                .after(Some((*r).clone()))
+                                .same_drapes
+                                .contains(&r.manifest_sha256)
+                        })
+                        .map(|r| r.manifest_sha256.clone()),
+                );
+                (out.len() == before).then(|| {
+                    format!(
+                        "{} records no program and config the record does",
+                        file.display()
+                    )
+                })
             }
-        }
-        Ok(m.to_string())
+        };
+        Ok((out, why))
     }
 }
 
@@ -158,20 +179,37 @@ impl SameDrapes {
 /// another split. Sample ids repeat across datasets and splits, so matching ids alone do
 /// not make the drapes the same. Evaluations without a provenance pass.
 pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), EvalError> {
-    if let (Some((ma, sa, da)), Some((mb, sb, db))) = (evaluated_on(a)?, evaluated_on(b)?) {
-        let ka = same.standing_for(&ma, da.as_deref())?;
-        let kb = same.standing_for(&mb, db.as_deref())?;
-        if (&ka, &sa) != (&kb, &sb) {
-            return Err(EvalError::Invalid(format!(
-                "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program it records)",
-                a.display(),
-                dataset::manifest::short_hex(&ma),
-                b.display(),
-                dataset::manifest::short_hex(&mb),
-            )));
-        }
+    let (Some((ma, sa, da)), Some((mb, sb, db))) = (evaluated_on(a)?, evaluated_on(b)?) else {
+        return Ok(());
+    };
+    if sa == sb && ma == mb {
+        return Ok(());
     }
-    Ok(())
+    let (ra, why_a) = same.recorded_as(&ma, da.as_deref())?;
+    let (rb, why_b) = same.recorded_as(&mb, db.as_deref())?;
+    if sa == sb && !ra.is_disjoint(&rb) {
+        return Ok(());
+    }
+    let hint = if same.recorded.is_empty() {
+        " (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program and config it records)".to_string()
+    } else {
+        let whys: Vec<String> = [why_a, why_b].into_iter().flatten().collect();
+        if whys.is_empty() {
+            " (the record lists them as no one dataset)".to_string()
+        } else {
+            format!(
+                " (the record lists them as no one dataset; {})",
+                whys.join("; ")
+            )
+        }
+    };
+    Err(EvalError::Invalid(format!(
+        "{} was evaluated on the {sa} split of the dataset with manifest sha256 {}..., {} on the {sb} split of {}...: these are different drapes; compare evaluations of the same split of the same dataset{hint}",
+        a.display(),
+        dataset::manifest::short_hex(&ma),
+        b.display(),
+        dataset::manifest::short_hex(&mb),
+    )))
 }
 
 /// Reads `method`'s per-sample figures from an evaluation: a report folder of `drape eval`
@@ -189,7 +227,7 @@ pub fn load(path: &Path, method: &str) -> Result<PerSample, EvalError> {
         ))
     })?;
     let mut out = PerSample::new();
-    let mut methods = std::collections::BTreeSet::new();
+    let mut methods = BTreeSet::new();
     for row in rows {
         let Some(id) = row["id"].as_i64() else {
             continue;
