@@ -12,6 +12,7 @@ use serde::Serialize;
 
 use crate::evaluate::EvalError;
 use crate::metrics::mean_std;
+use crate::repro::record::DataSummary;
 
 /// The per-sample figures compared: key in the evaluation's rows, label, factor to the
 /// label's unit.
@@ -83,40 +84,23 @@ fn evaluated_on(path: &Path) -> Result<Option<(String, String, Option<PathBuf>)>
 #[derive(Debug, Default)]
 pub struct SameDrapes {
     /// The recorded datasets.
-    recorded: Vec<crate::repro::record::DataSummary>,
+    recorded: Vec<DataSummary>,
 }
 
 impl SameDrapes {
     /// The datasets recorded in the record folder `dir` (its `data/*.json`).
     pub fn from_record(dir: &Path) -> Result<Self, EvalError> {
-        let data = dir.join("data");
-        let entries = std::fs::read_dir(&data).map_err(|e| {
-            EvalError::Invalid(format!(
-                "{}: not a record folder of `drape reproduce` (cannot list its data/ folder: {e})",
+        if !dir.join("data").is_dir() {
+            return Err(EvalError::Invalid(format!(
+                "{}: not a record folder of `drape reproduce` (it has no data/ folder)",
                 dir.display()
-            ))
-        })?;
-        let mut recorded = Vec::new();
-        for entry in entries {
-            let path = entry
-                .map_err(|e| EvalError::Invalid(format!("cannot list {}: {e}", data.display())))?
-                .path();
-            if path.extension().is_some_and(|x| x == "json") {
-                let bytes = std::fs::read(&path).map_err(|e| {
-                    EvalError::Invalid(format!("cannot read {}: {e}", path.display()))
-                })?;
-                recorded.push(serde_json::from_slice(&bytes).map_err(|e| {
-                    EvalError::Invalid(format!(
-                        "{}: not a dataset summary of a reproduction record: {e}",
-                        path.display()
-                    ))
-                })?);
-            }
+            )));
         }
+        let recorded = DataSummary::all_recorded(dir)?;
         if recorded.is_empty() {
             return Err(EvalError::Invalid(format!(
                 "{} records no dataset",
-                data.display()
+                dir.join("data").display()
             )));
         }
         Ok(Self { recorded })
@@ -126,7 +110,7 @@ impl SameDrapes {
     /// recorded manifests): those that list `m` (as theirs or under `same_drapes`), and, if
     /// the data folder `data` the evaluation named still holds manifest `m`, those whose
     /// config and program its manifest records (a working folder made again after the
-    /// record was written: [`crate::repro::record::DataSummary::after`]). Beside them, why
+    /// record was written: [`DataSummary::same_drapes_as`]). Beside them, why
     /// the data folder did not count, for the error message.
     fn recorded_as(
         &self,
@@ -143,26 +127,20 @@ impl SameDrapes {
             return Ok((out, None));
         };
         let file = data.join("manifest.json");
-        let why = match crate::repro::record::DataSummary::read("", &file)? {
+        let why = match DataSummary::read("", &file)? {
             None => Some(format!("{} is gone", file.display())),
             Some(live) if live.manifest_sha256 != m => Some(format!(
                 "{} is no longer the manifest evaluated",
                 file.display()
             )),
             Some(live) => {
-                let before = out.len();
-                out.extend(
-                    self.recorded
-                        .iter()
-                        .filter(|r| {
-                            live.clone()
-                                .after(Some((*r).clone()))
-                                .same_drapes
-                                .contains(&r.manifest_sha256)
-                        })
-                        .map(|r| r.manifest_sha256.clone()),
-                );
-                (out.len() == before).then(|| {
+                let same: Vec<&DataSummary> = self
+                    .recorded
+                    .iter()
+                    .filter(|r| live.same_drapes_as(r))
+                    .collect();
+                out.extend(same.iter().map(|r| r.manifest_sha256.clone()));
+                same.is_empty().then(|| {
                     format!(
                         "{} records no program and config the record does",
                         file.display()

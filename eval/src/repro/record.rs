@@ -85,9 +85,7 @@ impl DataSummary {
     /// again keeps them too).
     pub fn after(mut self, earlier: Option<Self>) -> Self {
         if let Some(e) = earlier
-            && e.config_sha256 == self.config_sha256
-            && e.program_sha256.is_some()
-            && e.program_sha256 == self.program_sha256
+            && self.same_drapes_as(&e)
         {
             for m in e.same_drapes.into_iter().chain([e.manifest_sha256]) {
                 if m != self.manifest_sha256 && !self.same_drapes.contains(&m) {
@@ -96,6 +94,33 @@ impl DataSummary {
             }
         }
         self
+    }
+
+    /// Whether this dataset holds the same drapes as `other`: made from the same config
+    /// by the same program, recorded in both (one binary drapes the same bytes).
+    pub fn same_drapes_as(&self, other: &Self) -> bool {
+        self.config_sha256 == other.config_sha256
+            && self.program_sha256.is_some()
+            && self.program_sha256 == other.program_sha256
+    }
+
+    /// Every dataset summary of the record folder `record` (its `data/*.json`).
+    pub fn all_recorded(record: &Path) -> Result<Vec<Self>, EvalError> {
+        let data = record.join("data");
+        let mut out = Vec::new();
+        for entry in std::fs::read_dir(&data).map_err(io(&data))? {
+            let path = entry.map_err(io(&data))?.path();
+            if path.extension().is_some_and(|x| x == "json") {
+                let bytes = std::fs::read(&path).map_err(io(&path))?;
+                out.push(serde_json::from_slice(&bytes).map_err(|e| {
+                    EvalError::Invalid(format!(
+                        "{}: not a dataset summary of a reproduction record: {e}",
+                        path.display()
+                    ))
+                })?);
+            }
+        }
+        Ok(out)
     }
 
     /// The summary recorded for dataset `key` in the plan's record, if any.
