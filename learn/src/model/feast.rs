@@ -545,7 +545,7 @@ fn ready<T>(f: impl Future<Output = T>) -> T {
     }
 }
 
-fn host_floats<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
+pub(super) fn host_floats<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
     ready(B::float_into_data(t))
         .expect("reading a tensor on the CPU")
         .convert::<f32>()
@@ -553,8 +553,48 @@ fn host_floats<B: Backend>(t: FloatTensor<B>) -> Vec<f32> {
         .expect("f32 data")
 }
 
-fn to_backend<B: Backend>(v: Vec<f32>, shape: Vec<usize>, device: &B::Device) -> FloatTensor<B> {
+pub(super) fn to_backend<B: Backend>(
+    v: Vec<f32>,
+    shape: Vec<usize>,
+    device: &B::Device,
+) -> FloatTensor<B> {
     B::float_from_data(TensorData::new(v, shape), device)
+}
+
+/// Runs `f` on a float tensor's values: on burn-flex in place when the tensor is contiguous,
+/// elsewhere on a copy ([`host_floats`]). Reading through `TensorData` copies a tensor that
+/// autodiff also keeps (twice on burn-flex: once out of the shared buffer, once more to
+/// align it).
+pub(super) fn with_floats<B: Backend, R>(t: &FloatTensor<B>, f: impl FnOnce(&[f32]) -> R) -> R {
+    #[cfg(feature = "flex")]
+    if let Some(flex) = (t as &dyn std::any::Any).downcast_ref::<burn_flex::FlexTensor>()
+        && let Some(values) = flex.as_slice::<f32>()
+    {
+        return f(values);
+    }
+    f(&host_floats::<B>(t.clone()))
+}
+
+/// A float tensor of `shape` holding `v`: on burn-flex without a copy, elsewhere through
+/// [`to_backend`].
+pub(super) fn from_floats<B: Backend>(
+    v: Vec<f32>,
+    shape: Vec<usize>,
+    device: &B::Device,
+) -> FloatTensor<B> {
+    #[cfg(feature = "flex")]
+    if std::any::TypeId::of::<FloatTensor<B>>() == std::any::TypeId::of::<burn_flex::FlexTensor>() {
+        let flex = burn_flex::FlexTensor::new(
+            burn_std::Bytes::from_elems(v),
+            burn_flex::Layout::contiguous(burn_std::Shape::from(shape)),
+            burn::tensor::DType::F32,
+        );
+        let boxed: Box<dyn std::any::Any> = Box::new(flex);
+        return *boxed
+            .downcast::<FloatTensor<B>>()
+            .expect("the types are equal");
+    }
+    to_backend::<B>(v, shape, device)
 }
 
 /// FeaStNet's aggregation as a backend operation (see the module's documentation).
@@ -574,14 +614,12 @@ pub trait FeastOps: Backend {
     ) -> FloatTensor<Self> {
         let [b, n, ch, m] = sizes(&x.shape(), &ux.shape(), &slots);
         let device = x.device();
-        let z = feast_forward(
-            &host_floats::<Self>(x),
-            &host_floats::<Self>(ux),
-            &host_floats::<Self>(c),
-            &slots,
-            [b, n, ch, m],
-        );
-        to_backend::<Self>(z, vec![b, n, m * ch], &device)
+        let z = with_floats::<Self, _>(&x, |x| {
+            with_floats::<Self, _>(&ux, |ux| {
+                with_floats::<Self, _>(&c, |c| feast_forward(x, ux, c, &slots, [b, n, ch, m]))
+            })
+        });
+        from_floats::<Self>(z, vec![b, n, m * ch], &device)
     }
 
     /// [`feast_backward`] on the backend's tensors: the gradients of `x`, `ux` and `c`.
@@ -594,18 +632,19 @@ pub trait FeastOps: Backend {
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         let [b, n, ch, m] = sizes(&x.shape(), &ux.shape(), &slots);
         let device = x.device();
-        let (gx, gux, gc) = feast_backward(
-            &host_floats::<Self>(x),
-            &host_floats::<Self>(ux),
-            &host_floats::<Self>(c),
-            &host_floats::<Self>(gz),
-            &slots,
-            [b, n, ch, m],
-        );
+        let (gx, gux, gc) = with_floats::<Self, _>(&x, |x| {
+            with_floats::<Self, _>(&ux, |ux| {
+                with_floats::<Self, _>(&c, |c| {
+                    with_floats::<Self, _>(&gz, |gz| {
+                        feast_backward(x, ux, c, gz, &slots, [b, n, ch, m])
+                    })
+                })
+            })
+        });
         (
-            to_backend::<Self>(gx, vec![b, n, ch], &device),
-            to_backend::<Self>(gux, vec![b, n, m], &device),
-            to_backend::<Self>(gc, vec![m], &device),
+            from_floats::<Self>(gx, vec![b, n, ch], &device),
+            from_floats::<Self>(gux, vec![b, n, m], &device),
+            from_floats::<Self>(gc, vec![m], &device),
         )
     }
 }

@@ -18,6 +18,7 @@ use pulp::{Simd, WithSimd};
 use rayon::prelude::*;
 
 use super::feast::Level;
+use super::trainops::PoolRows;
 
 /// Rows per rayon task: the loops below are a few hundred operations per row.
 const ROWS_PER_TASK: usize = 256;
@@ -69,10 +70,14 @@ fn max_into(acc: &mut [f32], row: &[f32]) {
 /// # Shapes
 /// `[A, K, C]` -> `[A, 1, C]`.
 pub fn max_axis1(x: Tensor<3>) -> Tensor<3> {
+    let [a, k, c] = x.dims();
     if !host(&x) {
+        if cpu_build() {
+            let t = x.reshape([a * k, c]);
+            return super::trainops::max_pool(t, PoolRows::Consecutive, k, a).reshape([a, 1, c]);
+        }
         return x.max_dim(1);
     }
-    let [a, k, c] = x.dims();
     let device = x.device();
     let out = row_maxima(&floats(x), [a, k, c]);
     Tensor::from_data(TensorData::new(out, [a, 1, c]), &device)
@@ -121,6 +126,10 @@ pub fn gather_max(table: Tensor<2>, index: &Tensor<1, Int>, k: usize) -> Tensor<
     let [_, l] = table.dims();
     let q = index.dims()[0] / k;
     if !host(&table) {
+        if cpu_build() {
+            let rows = indices(index).into_iter().map(|i| i as u32).collect();
+            return super::trainops::max_pool(table, PoolRows::Gathered(rows), k, q);
+        }
         return table
             .select(0, index.clone())
             .reshape([q, k, l])

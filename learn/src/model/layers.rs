@@ -77,7 +77,9 @@ pub fn normed<const D: usize>(norm: Option<&LayerNorm>, x: Tensor<D>) -> Tensor<
 /// and a faster training step (docs/bench.md, "The leaky ReLU"). Without autodiff burn's
 /// own `leaky_relu` is one pass and stays.
 pub fn leaky<const D: usize>(x: Tensor<D>, slope: f64) -> Tensor<D> {
-    if x.is_autodiff() {
+    if x.is_autodiff() && host::cpu_build() {
+        super::trainops::leaky(x, slope)
+    } else if x.is_autodiff() {
         x.clone() * slope + relu(x) * (1.0 - slope)
     } else {
         leaky_relu(x, slope)

@@ -11,6 +11,7 @@ pub mod feast;
 pub mod fused;
 pub mod host;
 mod layers;
+pub mod trainops;
 
 pub use layers::{Aggregation, FeaStConv, Graph, Mlp, SplitLinear};
 
