@@ -10,8 +10,9 @@
 //!
 //! They are used only where no gradient is wanted: [`host`] is true for tensors off the
 //! autodiff device, and only when no GPU backend is compiled in (where reading the data
-//! back would cost a device round trip). Training takes burn's operations; the tests below
-//! check each kernel against them.
+//! back would cost a device round trip). Training on the CPU backends takes the same max
+//! pools as operations with their own backward ([`super::trainops`]), GPU builds burn's
+//! operations; the tests below check each kernel against burn's.
 
 use burn::tensor::{Int, Tensor, TensorData};
 use pulp::{Simd, WithSimd};

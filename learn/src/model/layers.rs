@@ -74,8 +74,10 @@ pub fn normed<const D: usize>(norm: Option<&LayerNorm>, x: Tensor<D>) -> Tensor<
 /// scalar loops on burn-flex. Written as `slope x + (1 - slope) relu(x)` it is four vectorised
 /// passes forward and backward (relu has its own backward op): the same values to a rounding
 /// of the positive side, the same gradient except at exactly 0 (the slope here, 1 in burn's),
-/// and a faster training step (docs/bench.md, "The leaky ReLU"). Without autodiff burn's
-/// own `leaky_relu` is one pass and stays.
+/// and a faster training step (docs/bench.md, "The leaky ReLU"). On the CPU backends
+/// (since session 63) it is one operation with its own backward instead, one pass each way
+/// with that composition's gradient ([`super::trainops::leaky`]); GPU builds keep the
+/// composition. Without autodiff burn's own `leaky_relu` is one pass and stays.
 pub fn leaky<const D: usize>(x: Tensor<D>, slope: f64) -> Tensor<D> {
     if x.is_autodiff() && host::cpu_build() {
         super::trainops::leaky(x, slope)
