@@ -272,14 +272,7 @@ mod tests {
     use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
 
     use super::{PoolRows, leaky, max_pool};
-    use crate::model::host::{gather_max, max_axis1};
-
-    fn floats<const D: usize>(x: Tensor<D>) -> Vec<f32> {
-        x.into_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .unwrap()
-    }
+    use crate::model::host::{floats, gather_max, max_axis1};
 
     /// Two leaves on the autodiff device with the same normal random values.
     fn twins<const D: usize>(dims: [usize; D], seed: u64) -> (Tensor<D>, Tensor<D>) {
