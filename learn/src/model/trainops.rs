@@ -266,7 +266,9 @@ pub fn leaky<const D: usize>(x: Tensor<D>, slope: f64) -> Tensor<D> {
     ))
 }
 
-#[cfg(test)]
+// On the default device, which is a GPU one in builds with a GPU backend, where these
+// operations do not exist (the model takes burn's there).
+#[cfg(all(test, not(any(feature = "cuda", feature = "wgpu"))))]
 mod tests {
     use burn::tensor::activation::{leaky_relu, relu};
     use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
@@ -349,6 +351,30 @@ mod tests {
             12,
             |t| max_pool(t, PoolRows::Gathered(rows_u32.clone()), k, q),
             want,
+        );
+    }
+
+    /// Of equal values the first row stays and takes the gradient; a NaN once seen stays
+    /// (as `max_dim` and the inference kernels of [`crate::model::host`]).
+    #[test]
+    fn pool_keeps_the_first_of_equal_values_and_a_nan() {
+        // Rows 0..4 of width 2: column 0 ties at 1.0 in rows 1 and 3, column 1 has a NaN in
+        // row 2 and a larger value after it.
+        let table = [0.0, 0.0, 1.0, 0.5, -1.0, f32::NAN, 1.0, 9.0];
+        let rows = PoolRows::Gathered(vec![0, 1, 2, 3, 3, 1, 0, 2]);
+        let (out, arg) = super::pool_forward(&table, 2, &rows, 4, 2);
+        assert_eq!((out[0], arg[0]), (1.0, 1));
+        assert!(out[1].is_nan() && arg[1] == 2, "{out:?} {arg:?}");
+        assert_eq!((out[2], arg[2]), (1.0, 3));
+        assert!(out[3].is_nan() && arg[3] == 2, "{out:?} {arg:?}");
+        // Both outputs' gradients land in their rows, added where rows coincide.
+        let g = super::pool_backward(&[1.0, 2.0, 10.0, 20.0], &arg, 2, 4);
+        assert_eq!(g, vec![0.0, 0.0, 1.0, 0.0, 0.0, 22.0, 10.0, 0.0]);
+        let (out, arg) = super::pool_forward(&table, 2, &PoolRows::Consecutive, 2, 2);
+        assert_eq!((&out[..3], arg), (&[1.0, 0.5, 1.0][..], vec![1, 1, 3, 2]));
+        assert!(
+            out[3].is_nan(),
+            "the NaN of row 2 stays before row 3's 9: {out:?}"
         );
     }
 
