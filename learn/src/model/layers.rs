@@ -88,6 +88,32 @@ pub fn leaky<const D: usize>(x: Tensor<D>, slope: f64) -> Tensor<D> {
     }
 }
 
+/// Whether linear layers run as one operation with their own backward
+/// ([`super::dense`]): under autodiff, in a build with only CPU backends and burn-flex.
+fn dense_path<const D: usize>(x: &Tensor<D>) -> bool {
+    cfg!(feature = "flex") && host::cpu_build() && x.is_autodiff()
+}
+
+/// `l(x)`, then the leaky ReLU of `slope` when there is one. In training on the CPU
+/// backends one operation ([`super::dense`]: the product, the bias and the activation
+/// written once, with its own backward); elsewhere burn's `Linear` and [`leaky`].
+pub fn linear_act<const D: usize>(l: &Linear, x: Tensor<D>, slope: Option<f64>) -> Tensor<D> {
+    #[cfg(feature = "flex")]
+    if dense_path(&x) {
+        let o = l.weight.dims()[1];
+        let add = match &l.bias {
+            Some(b) => b.val().reshape([1, 1, o]),
+            None => Tensor::zeros([1, 1, o], &x.device()),
+        };
+        return super::dense::dense(x, l.weight.val(), add, slope);
+    }
+    let y = l.forward(x);
+    match slope {
+        Some(s) => leaky(y, s),
+        None => y,
+    }
+}
+
 /// A point-wise MLP: linear layers, each followed by a leaky ReLU (with `norm`, by a layer
 /// normalisation and then the leaky ReLU).
 #[derive(Module, Debug)]
@@ -137,7 +163,10 @@ impl Mlp {
     /// `[.., input]` -> `[.., widths.last()]`.
     pub fn forward<const D: usize>(&self, mut x: Tensor<D>) -> Tensor<D> {
         for (i, l) in self.layers.iter().enumerate() {
-            x = leaky(normed(self.norms.get(i), l.forward(x)), self.slope);
+            x = match self.norms.get(i) {
+                None => linear_act(l, x, Some(self.slope)),
+                Some(n) => leaky(n.forward(linear_act(l, x, None)), self.slope),
+            };
         }
         x
     }
@@ -184,6 +213,48 @@ impl SplitLinear {
                 )
             })
             .collect()
+    }
+
+    /// [`SplitLinear::forward`], then the leaky ReLU of `slope` when there is one. In
+    /// training on the CPU backends the per-sample inputs' maps and the bias make one
+    /// addend `[B, 1, output]`, and each per-vertex input's map is one operation
+    /// ([`super::dense`]) that adds it to the sum so far, the last with the activation.
+    ///
+    /// # Shapes
+    /// As [`SplitLinear::forward`].
+    pub fn forward_act(&self, inputs: Vec<Tensor<3>>, slope: Option<f64>) -> Tensor<3> {
+        #[cfg(feature = "flex")]
+        if inputs.iter().any(dense_path) {
+            let n = inputs.iter().map(|x| x.dims()[1]).max().unwrap_or(0);
+            let o = self.parts[0].weight.dims()[1];
+            let mut add: Option<Tensor<3>> = None;
+            let mut per_vertex = Vec::new();
+            for (l, x) in self.parts.iter().zip(inputs) {
+                let term = if x.dims()[1] == n {
+                    per_vertex.push((l, x));
+                    l.bias.as_ref().map(|b| b.val().reshape([1, 1, o]))
+                } else {
+                    Some(l.forward(x))
+                };
+                add = match (add, term) {
+                    (Some(a), Some(t)) => Some(a + t),
+                    (a, t) => a.or(t),
+                };
+            }
+            let last = per_vertex.len() - 1;
+            let mut sum =
+                add.unwrap_or_else(|| Tensor::zeros([1, 1, o], &per_vertex[0].1.device()));
+            for (j, (l, x)) in per_vertex.into_iter().enumerate() {
+                let act = if j == last { slope } else { None };
+                sum = super::dense::dense(x, l.weight.val(), sum, act);
+            }
+            return sum;
+        }
+        let y = self.forward(inputs);
+        match slope {
+            Some(s) => leaky(y, s),
+            None => y,
+        }
     }
 
     /// # Shapes
@@ -356,12 +427,12 @@ impl FeaStConv {
     /// operations where a GPU backend is; tests and benchmarks pick either), then one
     /// linear map from `M * input` to `output`.
     pub fn forward(&self, x: Tensor<3>, g: &Graph, how: &Aggregation) -> Tensor<3> {
-        let ux = self.u.forward(x.clone()); // [B, N, M]
+        let ux = linear_act(&self.u, x.clone(), None); // [B, N, M]
         let z = match how {
             Aggregation::Fused => feast::aggregate(x, ux, self.c.val(), &g.host_slots),
             Aggregation::Tensors(rows) => self.aggregate_tensors(x, ux, g, rows),
         }; // [B, N, M * C]
-        let y = self.lin.forward(z); // [B, N, O]
+        let y = linear_act(&self.lin, z, None); // [B, N, O]
         y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output])
     }
 

@@ -7,13 +7,15 @@
 //! fusion (point-wise MLP to 3 outputs, the per-vertex translation T^P). Prediction
 //! G^P = M + T^P.
 
+#[cfg(feature = "flex")]
+pub mod dense;
 pub mod feast;
 pub mod fused;
 pub mod host;
 mod layers;
 pub mod trainops;
 
-pub use layers::{Aggregation, FeaStConv, Graph, Mlp, SplitLinear};
+pub use layers::{Aggregation, FeaStConv, Graph, Mlp, SplitLinear, linear_act};
 
 use layers::{leaky, maybe_norm, normed};
 
@@ -75,7 +77,7 @@ impl SpatialTransformer {
         let h = self.mlp.forward(x); // [B, P, C]
         let c = h.dims()[2];
         let g = host::max_axis1(h).reshape([b, c]); // [B, C]
-        let t = self.out.forward(self.head.forward(g)).reshape([b, 3, 3]); // [B, 3, 3]
+        let t = linear_act(&self.out, self.head.forward(g), None).reshape([b, 3, 3]); // [B, 3, 3]
         let eye = Tensor::<2>::eye(3, &t.device()).unsqueeze_dim::<3>(0);
         t + eye
     }
@@ -336,6 +338,20 @@ pub fn positional_encoding(x: Tensor<3>, bands: usize) -> Tensor<3> {
     Tensor::cat(parts, 2)
 }
 
+/// `leaky(norm(l(inputs)))`, without `norm` as one operation in training on the CPU
+/// backends ([`SplitLinear::forward_act`]).
+fn split_act(
+    l: &SplitLinear,
+    inputs: Vec<Tensor<3>>,
+    norm: Option<&LayerNorm>,
+    slope: f64,
+) -> Tensor<3> {
+    match norm {
+        None => l.forward_act(inputs, Some(slope)),
+        Some(n) => leaky(n.forward(l.forward_act(inputs, None)), slope),
+    }
+}
+
 /// Body features a forward pass takes from another drape of its batch
 /// ([`GarNet::forward_swapped`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -481,11 +497,10 @@ impl GarNet {
             self.garment_in_host(encoded, global.clone())
         } else {
             let point = self.garment_mlp.forward(encoded); // [B, N, Cg]
-            let h0 = leaky(
-                normed(
-                    self.conv_in_norm.as_ref(),
-                    self.conv_in.forward(vec![point.clone(), global.clone()]),
-                ),
+            let h0 = split_act(
+                &self.conv_in,
+                vec![point.clone(), global.clone()],
+                self.conv_in_norm.as_ref(),
                 self.slope,
             ); // [B, N, C]
             (point, h0)
@@ -499,7 +514,7 @@ impl GarNet {
         // Local body features.
         if let (Some(local_in), Some(body_point)) = (&self.local_in, body_point) {
             let [_, p, _] = body_point.dims();
-            let f = leaky(local_in.forward(body_point), self.slope); // [B, P, L]
+            let f = linear_act(local_in, body_point, Some(self.slope)); // [B, P, L]
             let l = LOCAL_WIDTH;
             let (pd, kp, k) = (self.local_points, self.local_pool_k, self.local_k);
             let pooled = f
@@ -519,11 +534,13 @@ impl GarNet {
         if host::host(&fused[0]) {
             return self.head_host(fused);
         }
-        let f = leaky(
-            normed(self.fusion_in_norm.as_ref(), self.fusion_in.forward(fused)),
+        let f = split_act(
+            &self.fusion_in,
+            fused,
+            self.fusion_in_norm.as_ref(),
             self.slope,
         ); // [B, N, F0]
-        self.out.forward(self.fusion.forward(f)) // [B, N, 3]
+        linear_act(&self.out, self.fusion.forward(f), None) // [B, N, 3]
     }
 
     /// The garment stream's point-wise layers without autodiff on the CPU backends: the
