@@ -14,12 +14,13 @@
 //! walks the same blocks: the activation's gradient (1 where the output is positive, the
 //! slope elsewhere: the leaky ReLU keeps the sign for a slope of 0 or more), the input's
 //! gradient `dz W^T`, and `x^T dz` and the addend's sums into the weight's and addend's
-//! gradients. Those sums run over [`GROUPS`] fixed ranges of rows, each summed in order and
-//! then added in order, so they do not depend on how rayon schedules the ranges: the same
+//! gradients. Those sums run over at most [`GROUPS`] fixed ranges of whole blocks, each
+//! summed in order and then added in order, so they do not depend on how rayon schedules the ranges: the same
 //! inputs give the same gradients bit for bit.
 //!
-//! The tests compare values and gradients with burn's `Linear` and `leaky_relu` (within
-//! rounding: the sums run in another order).
+//! The tests compare values and gradients with burn's `matmul`, addition and `leaky_relu`
+//! (within rounding: the sums run in another order), and [`super::SplitLinear`]'s with its
+//! burn composition.
 
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -514,6 +515,14 @@ pub fn dense<const D: usize>(
     let input = dims[D - 1];
     let rows: usize = dims[..D - 1].iter().product();
     let [batch, per, output] = add.dims();
+    assert!(
+        batch == 1 || (D > 1 && dims[0] == batch),
+        "an addend of {batch} samples for x {dims:?}"
+    );
+    assert!(
+        slope.is_none_or(|s| s >= 0.0),
+        "a leaky ReLU's slope of 0 or more (its gradient is read from the output's sign)"
+    );
     let add = add.reshape([batch * per, output]);
     let y = Tensor::<2>::from_dispatch(<Dispatch as DenseOps>::train_dense(
         x.reshape([rows, input]).into_dispatch(),
@@ -535,6 +544,7 @@ mod tests {
 
     use super::{Wanted, dense, dense_backward, dense_forward};
     use crate::model::host::floats;
+    use crate::model::trainops::tests::rel;
 
     /// A leaf on the autodiff device with normal random values.
     fn leaf<const D: usize>(dims: [usize; D], seed: u64) -> Tensor<D> {
@@ -547,17 +557,6 @@ mod tests {
     /// A copy of `t` as a new leaf.
     fn twin<const D: usize>(t: &Tensor<D>) -> Tensor<D> {
         Tensor::<D>::from_data(t.to_data(), &t.device()).require_grad()
-    }
-
-    /// The largest difference relative to `want`'s largest magnitude.
-    fn rel(got: &[f32], want: &[f32]) -> f32 {
-        assert_eq!(got.len(), want.len());
-        let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
-        got.iter()
-            .zip(want)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f32::max)
-            / scale
     }
 
     /// The operation against burn's `x W + add` (and `leaky_relu`) on `[b, n, input]`, with
@@ -618,22 +617,69 @@ mod tests {
         against_burn(5, 1, 256, 64, 1, Some(0.1));
     }
 
+    /// Rows without batch axes (the spatial transformer's output layer), and inputs or
+    /// addends that want no gradient (the network's inputs, a layer without a bias): the
+    /// others' gradients as burn's, none for them.
+    #[test]
+    fn dense_on_rows_and_without_some_gradients() {
+        let (x, w) = (leaf([6, 64], 41), leaf([64, 9], 42));
+        let a = leaf([1, 1, 9], 43);
+        let (x2, w2, a2) = (twin(&x), twin(&w), twin(&a));
+        let got = dense(x.clone(), w.clone(), a.clone(), None);
+        let want = x2.clone().matmul(w2.clone()) + a2.clone().reshape([1, 9]);
+        let r = Tensor::<2>::random([6, 9], Distribution::Normal(0.0, 1.0), &got.device());
+        let (g1, g2) = (
+            (got.clone() * r.clone()).sum().backward(),
+            (want.clone() * r).sum().backward(),
+        );
+        assert!(rel(&floats(got.inner()), &floats(want.inner())) < 1e-5);
+        for (ga, gb) in [(x.grad(&g1), x2.grad(&g2)), (w.grad(&g1), w2.grad(&g2))] {
+            assert!(rel(&floats(ga.unwrap()), &floats(gb.unwrap())) < 1e-5);
+        }
+        let (ga, gb) = (a.grad(&g1).unwrap(), a2.grad(&g2).unwrap());
+        assert!(
+            rel(&floats(ga), &floats(gb)) < 1e-5,
+            "the addend's gradient"
+        );
+        // x and the addend as constants, with the activation: only W's gradient.
+        let ad = Device::default().autodiff();
+        let xc = Tensor::<3>::from_data(leaf([2, 300, 16], 44).to_data(), &ad);
+        let ac = Tensor::<3>::zeros([1, 1, 8], &ad);
+        let w = leaf([16, 8], 45);
+        let w2 = twin(&w);
+        let got = dense(xc.clone(), w.clone(), ac, Some(0.1));
+        let want = leaky_relu(xc.clone().matmul(w2.clone().unsqueeze::<3>()), 0.1);
+        let r = Tensor::<3>::random([2, 300, 8], Distribution::Normal(0.0, 1.0), &ad);
+        let g1 = (got.clone() * r.clone()).sum().backward();
+        let g2 = (want.clone() * r).sum().backward();
+        assert!(rel(&floats(got.inner()), &floats(want.inner())) < 1e-5);
+        let (gw, gw2) = (floats(w.grad(&g1).unwrap()), floats(w2.grad(&g2).unwrap()));
+        assert!(gw2.iter().any(|v| *v != 0.0));
+        assert!(rel(&gw, &gw2) < 1e-5, "W's gradient");
+        assert!(xc.grad(&g1).is_none(), "no gradient for a constant input");
+    }
+
     /// The gradient at an output of exactly 0 (or -0) is the slope's, as
     /// [`crate::model::trainops::leaky`]'s; the sums do not depend on the threads.
     #[test]
     fn dense_gradient_at_zero_is_the_slope_and_the_sums_repeat() {
-        // x W + a = [0, -0, 2, -1] with w = 1 and a = 0.
+        // x W + a = [0, 0, 2, -1] with w = 1 and a = 0 (-0 * 1 + 0 is +0).
         let x = [0.0f32, -0.0, 2.0, -1.0];
         let y = dense_forward(&x, &[1.0], &[0.0], [1, 1, 1], Some(0.5));
-        assert_eq!(y, vec![0.0, -0.0, 2.0, -0.5]);
+        assert_eq!(y, vec![0.0, 0.0, 2.0, -0.5]);
         let all = Wanted {
             x: true,
             w: true,
             add: true,
         };
-        let g = dense_backward(&x, &[1.0], &y, &[1.0; 4], 1, [1, 1, 1], Some(0.5), all);
-        assert_eq!(g.x.unwrap(), vec![0.5, 0.5, 1.0, 0.5]);
-        assert_eq!(g.add.unwrap(), vec![2.5]);
+        // The backward pass reads the output's sign: an output of -0 takes the slope too.
+        for y in [y, vec![0.0, -0.0, 2.0, -0.5]] {
+            let g = dense_backward(&x, &[1.0], &y, &[1.0; 4], 1, [1, 1, 1], Some(0.5), all);
+            assert_eq!(g.x.unwrap(), vec![0.5, 0.5, 1.0, 0.5]);
+            // dW = sum of x * dz = 0 * 0.5 + (-0) * 0.5 + 2 * 1 + (-1) * 0.5.
+            assert_eq!(g.w.unwrap(), vec![1.5]);
+            assert_eq!(g.add.unwrap(), vec![2.5]);
+        }
         // Many rows on a pool of one thread and of four: the same bits.
         let (rows, input, output) = (5000, 17, 9);
         let v = |n: usize, k: usize| -> Vec<f32> {

@@ -90,8 +90,9 @@ pub fn leaky<const D: usize>(x: Tensor<D>, slope: f64) -> Tensor<D> {
 
 /// Whether linear layers run as one operation with their own backward
 /// ([`super::dense`]): under autodiff, in a build with only CPU backends and burn-flex.
+#[cfg(feature = "flex")]
 fn dense_path<const D: usize>(x: &Tensor<D>) -> bool {
-    cfg!(feature = "flex") && host::cpu_build() && x.is_autodiff()
+    host::cpu_build() && x.is_autodiff()
 }
 
 /// `l(x)`, then the leaky ReLU of `slope` when there is one. In training on the CPU
@@ -224,7 +225,7 @@ impl SplitLinear {
     /// As [`SplitLinear::forward`].
     pub fn forward_act(&self, inputs: Vec<Tensor<3>>, slope: Option<f64>) -> Tensor<3> {
         #[cfg(feature = "flex")]
-        if inputs.iter().any(dense_path) {
+        if inputs.iter().any(dense_path) && inputs.iter().all(|x| x.dims().iter().all(|&d| d > 0)) {
             let n = inputs.iter().map(|x| x.dims()[1]).max().unwrap_or(0);
             let o = self.parts[0].weight.dims()[1];
             let mut add: Option<Tensor<3>> = None;
@@ -518,5 +519,58 @@ mod tests {
             );
         }
         assert!(pos > 100 && neg > 100, "both sides sampled: {pos}, {neg}");
+    }
+
+    /// A split layer in training (per-vertex and per-sample inputs, two per-vertex ones
+    /// chained, several samples) gives `leaky(forward(inputs))`'s values and the gradients
+    /// of its inputs and of every map's weight and the bias.
+    #[cfg(all(feature = "flex", not(any(feature = "cuda", feature = "wgpu"))))]
+    #[test]
+    fn split_layer_as_one_operation_is_its_composition() {
+        use crate::model::trainops::tests::rel;
+        let ad = Device::default().autodiff();
+        ad.seed(9);
+        let (b, n, o) = (3, 400, 24);
+        let dims = [[b, n, 20], [b, 1, 12], [b, n, 7], [b, 1, 5]];
+        let data: Vec<TensorData> = dims
+            .iter()
+            .map(|&d| Tensor::<3>::random(d, Distribution::Normal(0.0, 1.0), &ad).into_data())
+            .collect();
+        let layer = SplitLinear::new(&[20, 12, 7, 5], o, &ad);
+        let leaves = || -> Vec<Tensor<3>> {
+            data.iter()
+                .map(|d| Tensor::<3>::from_data(d.clone(), &ad).require_grad())
+                .collect()
+        };
+        let (xa, xb) = (leaves(), leaves());
+        let got = layer.forward_act(xa.clone(), Some(0.1));
+        let want = leaky_relu(layer.forward(xb.clone()), 0.1);
+        let to = |t: Tensor<3>| t.inner().into_data().try_to_vec::<f32>().unwrap();
+        assert!(rel(&to(got.clone()), &to(want.clone())) < 1e-5, "values");
+        let r = Tensor::<3>::random([b, n, o], Distribution::Normal(0.0, 1.0), &ad);
+        let g1 = (got * r.clone()).sum().backward();
+        let g2 = (want * r).sum().backward();
+        let v = |t: Tensor<3>| t.into_data().try_to_vec::<f32>().unwrap();
+        for (i, (a, c)) in xa.iter().zip(&xb).enumerate() {
+            let (ga, gc) = (v(a.grad(&g1).unwrap()), v(c.grad(&g2).unwrap()));
+            assert!(rel(&ga, &gc) < 1e-5, "input {i}'s gradient");
+        }
+        // The two passes share the layer's parameters: each gradient from each graph.
+        let w = |g: &burn::tensor::Gradients, i: usize| -> Vec<f32> {
+            let t = layer.parts[i]
+                .weight
+                .val()
+                .grad(g)
+                .expect("a weight's gradient");
+            t.into_data().try_to_vec::<f32>().unwrap()
+        };
+        for i in 0..4 {
+            assert!(rel(&w(&g1, i), &w(&g2, i)) < 1e-5, "map {i}'s gradient");
+        }
+        let bias = |g: &burn::tensor::Gradients| -> Vec<f32> {
+            let t = layer.parts[0].bias.as_ref().unwrap().val().grad(g).unwrap();
+            t.into_data().try_to_vec::<f32>().unwrap()
+        };
+        assert!(rel(&bias(&g1), &bias(&g2)) < 1e-5, "the bias's gradient");
     }
 }

@@ -718,8 +718,8 @@ mod tests {
             .unwrap()
     }
 
-    /// The residual blocks fused on the host (off the autodiff device) give burn's
-    /// operations' values (on it), with and without layer normalisation, the
+    /// The residual blocks fused on the host (off the autodiff device) give the training
+    /// operations' values (on it: burn's and this crate's, [`super::dense`] and others), with and without layer normalisation, the
     /// normalisations' gains and offsets drawn away from 1 and 0.
     #[test]
     fn fused_residual_blocks_are_burns_operations() {

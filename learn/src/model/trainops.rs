@@ -269,8 +269,8 @@ pub fn leaky<const D: usize>(x: Tensor<D>, slope: f64) -> Tensor<D> {
 // On the default device, which is a GPU one in builds with a GPU backend, where these
 // operations do not exist (the model takes burn's there).
 #[cfg(all(test, not(any(feature = "cuda", feature = "wgpu"))))]
-mod tests {
-    use burn::tensor::activation::{leaky_relu, relu};
+pub(crate) mod tests {
+    use burn::tensor::activation::leaky_relu;
     use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
 
     use super::{PoolRows, leaky, max_pool};
@@ -288,8 +288,9 @@ mod tests {
         )
     }
 
-    /// The largest difference relative to `want`'s largest magnitude.
-    fn rel(got: &[f32], want: &[f32]) -> f32 {
+    /// The largest difference relative to `want`'s largest magnitude (also for the tests
+    /// of [`crate::model::dense`] and [`crate::model::SplitLinear`]).
+    pub(crate) fn rel(got: &[f32], want: &[f32]) -> f32 {
         assert_eq!(got.len(), want.len());
         let scale = want.iter().fold(1e-12f32, |s, v| s.max(v.abs()));
         got.iter()
