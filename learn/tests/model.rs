@@ -775,8 +775,8 @@ impl burn::module::ModuleMapper for Noise {
 /// body stream's MLPs, the garment MLP with `conv_in`, the residual blocks and the fusion
 /// head fused, the maxima and the local max in SIMD registers); on the autodiff device
 /// the training operations (burn's and the crate's own with their backward: the linear
-/// layers, the max pools, the leaky ReLU, FeaStNet's aggregation). Both give the same translations for every variant, with and without
-/// layer normalisation, for one drape and a batch of three (143 vertices: tiles that end
+/// layers, the max pools, the leaky ReLU, FeaStNet's aggregation). Both give the same
+/// translations for every variant, with and without layer normalisation, for one drape and a batch of three (143 vertices: tiles that end
 /// part-way through a block of rows).
 #[test]
 fn the_inference_kernels_give_burns_forward_pass() {

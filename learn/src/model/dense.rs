@@ -215,7 +215,8 @@ pub struct DenseGrads {
     pub x: Option<Vec<f32>>,
     /// The weight's, `[input, output]`.
     pub w: Option<Vec<f32>>,
-    /// The addend's, its shape.
+    /// The addend's, its shape. None for a per-row addend without the activation, whose
+    /// gradient is the output's `g` itself (the caller passes it on, not a copy).
     pub add: Option<Vec<f32>>,
 }
 
@@ -253,6 +254,10 @@ pub fn dense_backward(
         assert_eq!(y.len(), g.len(), "the output is the gradient's shape");
     }
     let per_row = add_len == s.rows * output && s.rows != batch;
+    let want = Wanted {
+        add: want.add && !(per_row && slope.is_none()),
+        ..want
+    };
     let group = s.group_rows();
     let groups = s.rows.div_ceil(group).max(1);
     // Outputs written group by group: x's gradient and a per-row addend's (which is dz).
@@ -287,12 +292,7 @@ pub fn dense_backward(
                 // dz: the output gradient through the activation, into the per-row
                 // addend's gradient when it is wanted, else into scratch.
                 let dz: &[f32] = match (slope, gadd_part.as_deref_mut()) {
-                    (None, Some(part)) => {
-                        let d = &mut part[local * output..(local + rows) * output];
-                        d.copy_from_slice(gb);
-                        gb
-                    }
-                    (None, None) => gb,
+                    (None, _) => gb,
                     (Some(slope), Some(part)) => {
                         let yb = &y[first * output..(first + rows) * output];
                         let d = &mut part[local * output..(local + rows) * output];
@@ -449,6 +449,11 @@ impl<B: Backend + DenseOps> Backward<B, 3> for Dense {
         let rows = st.x.shape()[0];
         let add_len: usize = st.add_shape.iter().product();
         let sizes = [input, output, st.batch];
+        // A per-row addend without the activation: its gradient is g, passed on as it is.
+        let pass_on = st.slope.is_none() && add_len == rows * output && rows != st.batch;
+        if let (true, Some(node)) = (pass_on, &pa) {
+            grads.register::<B>(node.id, g.clone());
+        }
         let d = with_floats::<B, _>(&st.x, |x| {
             with_floats::<B, _>(&st.w, |w| {
                 with_floats::<B, _>(&g, |g| match &st.y {

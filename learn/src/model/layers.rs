@@ -108,10 +108,28 @@ pub fn linear_act<const D: usize>(l: &Linear, x: Tensor<D>, slope: Option<f64>) 
         };
         return super::dense::dense(x, l.weight.val(), add, slope);
     }
-    let y = l.forward(x);
+    maybe_leaky(l.forward(x), slope)
+}
+
+/// `y`, through the leaky ReLU of `slope` when there is one.
+fn maybe_leaky<const D: usize>(y: Tensor<D>, slope: Option<f64>) -> Tensor<D> {
     match slope {
         Some(s) => leaky(y, s),
         None => y,
+    }
+}
+
+/// `leaky(norm(layer(None)))`, or `layer(Some(slope))` without `norm`: a layer that can
+/// take the activation into its own operation ([`linear_act`], [`SplitLinear::forward_act`])
+/// takes it unless a normalisation sits between.
+pub fn norm_act<const D: usize>(
+    norm: Option<&LayerNorm>,
+    slope: f64,
+    layer: impl FnOnce(Option<f64>) -> Tensor<D>,
+) -> Tensor<D> {
+    match norm {
+        None => layer(Some(slope)),
+        Some(n) => leaky(n.forward(layer(None)), slope),
     }
 }
 
@@ -164,10 +182,7 @@ impl Mlp {
     /// `[.., input]` -> `[.., widths.last()]`.
     pub fn forward<const D: usize>(&self, mut x: Tensor<D>) -> Tensor<D> {
         for (i, l) in self.layers.iter().enumerate() {
-            x = match self.norms.get(i) {
-                None => linear_act(l, x, Some(self.slope)),
-                Some(n) => leaky(n.forward(linear_act(l, x, None)), self.slope),
-            };
+            x = norm_act(self.norms.get(i), self.slope, |act| linear_act(l, x, act));
         }
         x
     }
@@ -251,11 +266,7 @@ impl SplitLinear {
             }
             return sum;
         }
-        let y = self.forward(inputs);
-        match slope {
-            Some(s) => leaky(y, s),
-            None => y,
-        }
+        maybe_leaky(self.forward(inputs), slope)
     }
 
     /// # Shapes

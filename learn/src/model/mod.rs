@@ -17,7 +17,7 @@ pub mod trainops;
 
 pub use layers::{Aggregation, FeaStConv, Graph, Mlp, SplitLinear, linear_act};
 
-use layers::{leaky, maybe_norm, normed};
+use layers::{leaky, maybe_norm, norm_act, normed};
 
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, Linear, LinearConfig};
@@ -338,20 +338,6 @@ pub fn positional_encoding(x: Tensor<3>, bands: usize) -> Tensor<3> {
     Tensor::cat(parts, 2)
 }
 
-/// `leaky(norm(l(inputs)))`, without `norm` as one operation in training on the CPU
-/// backends ([`SplitLinear::forward_act`]).
-fn split_act(
-    l: &SplitLinear,
-    inputs: Vec<Tensor<3>>,
-    norm: Option<&LayerNorm>,
-    slope: f64,
-) -> Tensor<3> {
-    match norm {
-        None => l.forward_act(inputs, Some(slope)),
-        Some(n) => leaky(n.forward(l.forward_act(inputs, None)), slope),
-    }
-}
-
 /// Body features a forward pass takes from another drape of its batch
 /// ([`GarNet::forward_swapped`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -497,12 +483,10 @@ impl GarNet {
             self.garment_in_host(encoded, global.clone())
         } else {
             let point = self.garment_mlp.forward(encoded); // [B, N, Cg]
-            let h0 = split_act(
-                &self.conv_in,
-                vec![point.clone(), global.clone()],
-                self.conv_in_norm.as_ref(),
-                self.slope,
-            ); // [B, N, C]
+            let h0 = norm_act(self.conv_in_norm.as_ref(), self.slope, |act| {
+                let inputs = vec![point.clone(), global.clone()];
+                self.conv_in.forward_act(inputs, act)
+            }); // [B, N, C]
             (point, h0)
         };
         let patch = match &self.convs {
@@ -534,12 +518,9 @@ impl GarNet {
         if host::host(&fused[0]) {
             return self.head_host(fused);
         }
-        let f = split_act(
-            &self.fusion_in,
-            fused,
-            self.fusion_in_norm.as_ref(),
-            self.slope,
-        ); // [B, N, F0]
+        let f = norm_act(self.fusion_in_norm.as_ref(), self.slope, |act| {
+            self.fusion_in.forward_act(fused, act)
+        }); // [B, N, F0]
         linear_act(&self.out, self.fusion.forward(f), None) // [B, N, 3]
     }
 
@@ -719,8 +700,9 @@ mod tests {
     }
 
     /// The residual blocks fused on the host (off the autodiff device) give the training
-    /// operations' values (on it: burn's and this crate's, [`super::dense`] and others), with and without layer normalisation, the
-    /// normalisations' gains and offsets drawn away from 1 and 0.
+    /// operations' values (on it: burn's and this crate's, [`super::dense`] and others),
+    /// with and without layer normalisation, the normalisations' gains and offsets drawn
+    /// away from 1 and 0.
     #[test]
     fn fused_residual_blocks_are_burns_operations() {
         let ad = Device::default().autodiff();
