@@ -116,6 +116,42 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     assert!(text.contains("seed = 1\n"));
     std::fs::write(&seed7, text.replace("seed = 1\n", "seed = 7\n")).unwrap();
     let (ok, text) = train(&seed7, &data, &run_dir, &[]);
+    assert!(
+        !ok && text.contains("a run of seed 1, this invocation asks for seed 7")
+            && text.contains("--seed 1"),
+        "{text}"
+    );
+    // Given --seed 1, that config is the run's: the finished run stays as it is.
+    let (ok, text) = train(&seed7, &data, &run_dir, &["--seed".as_ref(), "1".as_ref()]);
+    assert!(ok, "{text}");
+    assert_eq!(
+        steps_before,
+        std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
+    );
+    // --seed trains another seed of the same config: its config.toml records the seed, and
+    // its first step (before any update) sees other weights or other drapes than seed 1's.
+    let first_terms = |dir: &Path| -> Vec<String> {
+        let steps = std::fs::read_to_string(dir.join("steps.csv")).unwrap();
+        let row = steps.lines().nth(1).expect("a step row").to_string();
+        row.split(',').skip(4).map(str::to_string).collect()
+    };
+    let one = config(tmp.path(), 1, "local", "");
+    let seed7_dir = tmp.path().join("run-seed7");
+    let (ok, text) = train(&one, &data, &seed7_dir, &["--seed".as_ref(), "7".as_ref()]);
+    assert!(ok, "{text}");
+    let recorded = std::fs::read_to_string(seed7_dir.join("config.toml")).unwrap();
+    assert!(recorded.contains("seed = 7\n"), "{recorded}");
+    assert_ne!(first_terms(&seed7_dir), first_terms(&run_dir));
+    // Another learning rate into the same folder is refused as another config.
+    let lr = tmp.path().join("lr.toml");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    assert!(text.contains("learning_rate = 1e-3\n"), "{text}");
+    std::fs::write(
+        &lr,
+        text.replace("learning_rate = 1e-3\n", "learning_rate = 2e-3\n"),
+    )
+    .unwrap();
+    let (ok, text) = train(&lr, &data, &run_dir, &[]);
     assert!(!ok && text.contains("another config"), "{text}");
     // So is a resume on other data: the same drapes under a manifest that differs.
     let copy = tmp.path().join("data-copy");

@@ -111,6 +111,15 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                     old.epochs
                 )));
             }
+            if old.seed != config.seed {
+                return Err(LearnError::Mismatch(format!(
+                    "{} is a run of seed {}, this invocation asks for seed {}; resume with --seed {} (or use another -o folder)",
+                    run.display(),
+                    old.seed,
+                    config.seed,
+                    old.seed
+                )));
+            }
             if &old != config {
                 // Only [model] differs: likely a resume without the run's `--widths`.
                 let same_but_model = TrainConfig {

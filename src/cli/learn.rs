@@ -33,6 +33,11 @@ pub struct TrainArgs {
     /// follows; the run's config.toml records the value used).
     #[arg(long, value_name = "N")]
     epochs: Option<usize>,
+    /// Seed of the initialisation and the shuffling instead of the config's `seed`: another
+    /// seed of the same run without a copy of its config. The run folder then defaults to
+    /// runs/NAME-seedN; the run's config.toml records the seed used.
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
     /// Wall-clock cap of this invocation instead of the config's `wall_clock_minutes`
     /// (0: no cap).
     #[arg(long, value_name = "MINUTES")]
@@ -57,6 +62,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     if let Some(e) = args.epochs {
         config.epochs = e;
     }
+    if let Some(s) = args.seed {
+        config.seed = s;
+    }
     if let Some(m) = args.wall_clock_minutes {
         config.wall_clock_minutes = m;
     }
@@ -65,9 +73,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     }
     config.validate()?;
     let data = args.data.unwrap_or_else(|| config.data.clone());
-    let run = args
-        .output
-        .unwrap_or_else(|| PathBuf::from("runs").join(&config.name));
+    let run = args.output.unwrap_or_else(|| {
+        PathBuf::from("runs").join(match args.seed {
+            Some(s) => format!("{}-seed{s}", config.name),
+            None => config.name.clone(),
+        })
+    });
     eprintln!(
         "{} ({}) on {} -> {}",
         config.name,
