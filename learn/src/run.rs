@@ -102,23 +102,23 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 .map_err(|e| LearnError::Config(format!("{}: {e}", cp.display())))?;
             // The wall-clock cap is per invocation: a resumed run may have another.
             old.wall_clock_minutes = config.wall_clock_minutes;
+            // An option given on the command line that differs from the run's: name it.
+            let refuse = |was: String, asks: String, flag: &str, value: u64| {
+                LearnError::Mismatch(format!(
+                    "{} is a run of {was}, this invocation asks for {asks}; resume with --{flag} {value} (or use another -o folder)",
+                    run.display()
+                ))
+            };
             if old.epochs != config.epochs {
-                return Err(LearnError::Mismatch(format!(
-                    "{} is a run of {} epochs, this invocation asks for {}; resume with --epochs {} (or use another -o folder)",
-                    run.display(),
-                    old.epochs,
-                    config.epochs,
-                    old.epochs
-                )));
+                let (was, asks) = (format!("{} epochs", old.epochs), config.epochs.to_string());
+                return Err(refuse(was, asks, "epochs", old.epochs as u64));
             }
             if old.seed != config.seed {
-                return Err(LearnError::Mismatch(format!(
-                    "{} is a run of seed {}, this invocation asks for seed {}; resume with --seed {} (or use another -o folder)",
-                    run.display(),
-                    old.seed,
-                    config.seed,
-                    old.seed
-                )));
+                let (was, asks) = (
+                    format!("seed {}", old.seed),
+                    format!("seed {}", config.seed),
+                );
+                return Err(refuse(was, asks, "seed", old.seed));
             }
             if &old != config {
                 // Only [model] differs: likely a resume without the run's `--widths`.

@@ -1,7 +1,8 @@
 //! Linear layers as one operation with its own backward pass, for training on burn-flex:
-//! `act(x W + a)`, where the addend `a` is the bias, a per-sample term (a split layer's
-//! global inputs, [`super::SplitLinear`]) or another per-row term, and `act` the leaky ReLU
-//! or none.
+//! `act(s (x W) + a)`, where the addend `a` is the bias, a per-sample term (a split layer's
+//! global inputs, [`super::SplitLinear`]) or another per-row term, `s` a constant scale per
+//! row of a sample or none (FeaStNet's `1 / |N_i|`, [`super::FeaStConv`]), and `act` the
+//! leaky ReLU or none.
 //!
 //! burn runs a linear layer under autodiff as a matrix product and a bias addition, each
 //! with its own output, and the leaky ReLU after it as another pass
@@ -31,6 +32,7 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Dispatch, TensorMetadata, backend_extension};
 use burn::tensor::Tensor;
 use rayon::prelude::*;
+use std::sync::Arc;
 
 use super::feast::{from_floats, with_floats};
 
@@ -142,6 +144,20 @@ impl Sizes {
         }
     }
 
+    /// Panics unless `scale` is none or one value per row of a sample: its length divides
+    /// the rows (the samples' count need not be the addend's `batch`, which is 1 for a
+    /// bias).
+    fn check_scale(&self, scale: Option<&[f32]>) {
+        if let Some(sc) = scale {
+            assert!(
+                !sc.is_empty() && self.rows.is_multiple_of(sc.len()),
+                "a scale of {} values for {} rows: one per row of a sample",
+                sc.len(),
+                self.rows
+            );
+        }
+    }
+
     /// The addend's row for row `i`.
     fn add_row(&self, add_len: usize, i: usize) -> usize {
         if add_len == self.rows * self.output {
@@ -157,36 +173,51 @@ impl Sizes {
     }
 }
 
-/// `act(x W + a)` for `x` `[rows, input]`, `w` `[input, output]`, `add` `[batch, output]`
-/// or `[rows, output]`, with the leaky ReLU of `slope` when there is one.
+/// `act(s (x W) + a)` for `x` `[rows, input]`, `w` `[input, output]`, `add` `[batch,
+/// output]` or `[rows, output]`, `scale` (`s`) one value per row of a sample (row `i`
+/// takes `scale[i % scale.len()]`) or none, with the leaky ReLU of `slope` when there is
+/// one.
 pub fn dense_forward(
     x: &[f32],
     w: &[f32],
     add: &[f32],
     [input, output, batch]: [usize; 3],
     slope: Option<f32>,
+    scale: Option<&[f32]>,
 ) -> Vec<f32> {
     let s = Sizes::of(x.len(), w.len(), add.len(), input, output, batch);
+    s.check_scale(scale);
     let mut y = vec![0.0f32; s.rows * output];
     y.par_chunks_mut(ROWS * output)
         .enumerate()
         .for_each(|(t, block)| {
             let first = t * ROWS;
             let rows = block.len() / output;
-            for (i, row) in block.chunks_exact_mut(output).enumerate() {
-                let a = s.add_row(add.len(), first + i) * output;
-                row.copy_from_slice(&add[a..a + output]);
+            if scale.is_none() {
+                for (i, row) in block.chunks_exact_mut(output).enumerate() {
+                    let a = s.add_row(add.len(), first + i) * output;
+                    row.copy_from_slice(&add[a..a + output]);
+                }
             }
             product(
                 [rows, output, input],
                 block,
                 [output, 1],
-                true,
+                scale.is_none(),
                 &x[first * input..],
                 [input, 1],
                 w,
                 [output, 1],
             );
+            if let Some(sc) = scale {
+                for (i, row) in block.chunks_exact_mut(output).enumerate() {
+                    let a = s.add_row(add.len(), first + i) * output;
+                    let f = sc[(first + i) % sc.len()];
+                    for (v, &b) in row.iter_mut().zip(&add[a..a + output]) {
+                        *v = f * *v + b;
+                    }
+                }
+            }
             if let Some(slope) = slope {
                 for v in block.iter_mut() {
                     *v = if *v > 0.0 { *v } else { slope * *v };
@@ -228,7 +259,7 @@ struct Partial {
 
 /// The backward pass of [`dense_forward`] for the output gradient `g` `[rows, output]`:
 /// `y` is the forward pass's output (read for the activation's gradient; unused without
-/// `slope`), `add_len` the addend's length.
+/// `slope`), `add_len` the addend's length, `scale` the forward pass's.
 #[allow(clippy::too_many_arguments)]
 pub fn dense_backward(
     x: &[f32],
@@ -238,9 +269,11 @@ pub fn dense_backward(
     add_len: usize,
     [input, output, batch]: [usize; 3],
     slope: Option<f32>,
+    scale: Option<&[f32]>,
     want: Wanted,
 ) -> DenseGrads {
     let s = Sizes::of(x.len(), w.len(), add_len, input, output, batch);
+    s.check_scale(scale);
     assert_eq!(
         g.len(),
         s.rows * output,
@@ -283,6 +316,7 @@ pub fn dense_backward(
                 ],
             };
             let mut scratch: Vec<f32> = Vec::new();
+            let mut scaled: Vec<f32> = Vec::new();
             let start = k * group;
             let end = (start + group).min(s.rows);
             for first in (start..end).step_by(ROWS) {
@@ -312,6 +346,22 @@ pub fn dense_backward(
                         &scratch
                     }
                 };
+                // The product's gradient: dz, times the row's scale when there is one
+                // (the addend's gradient is dz).
+                let dp: &[f32] = match scale {
+                    None => dz,
+                    Some(sc) => {
+                        scaled.resize(dz.len(), 0.0);
+                        let rows = scaled.chunks_exact_mut(output).zip(dz.chunks_exact(output));
+                        for (i, (d, row)) in rows.enumerate() {
+                            let f = sc[(first + i) % sc.len()];
+                            for (d, &v) in d.iter_mut().zip(row) {
+                                *d = f * v;
+                            }
+                        }
+                        &scaled
+                    }
+                };
                 if let Some(part) = gx_part.as_deref_mut() {
                     // dz [rows, output] times W^T [output, input] (w [input, output] read
                     // with swapped strides) into the block of x's gradient.
@@ -320,7 +370,7 @@ pub fn dense_backward(
                         &mut part[local * input..(local + rows) * input],
                         [input, 1],
                         false,
-                        dz,
+                        dp,
                         [output, 1],
                         w,
                         [1, output],
@@ -336,7 +386,7 @@ pub fn dense_backward(
                         true,
                         &x[first * input..(first + rows) * input],
                         [1, input],
-                        dz,
+                        dp,
                         [output, 1],
                     );
                 }
@@ -389,13 +439,15 @@ pub fn dense_backward(
 )]
 pub trait DenseOps: Backend {
     /// [`dense_forward`]: `x` `[rows, input]`, `w` `[input, output]`, `add` `[batch,
-    /// output]` or `[rows, output]` -> `[rows, output]`.
+    /// output]` or `[rows, output]`, `scale` one value per row of a sample or none -> `[rows,
+    /// output]`.
     fn train_dense(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         add: FloatTensor<Self>,
         batch: usize,
         slope: Option<f32>,
+        scale: Option<Arc<Vec<f32>>>,
     ) -> FloatTensor<Self> {
         let [input, output] = [w.shape()[0], w.shape()[1]];
         let rows = x.shape()[0];
@@ -403,7 +455,14 @@ pub trait DenseOps: Backend {
         let y = with_floats::<Self, _>(&x, |x| {
             with_floats::<Self, _>(&w, |w| {
                 with_floats::<Self, _>(&add, |a| {
-                    dense_forward(x, w, a, [input, output, batch], slope)
+                    dense_forward(
+                        x,
+                        w,
+                        a,
+                        [input, output, batch],
+                        slope,
+                        scale.as_deref().map(|v| &v[..]),
+                    )
                 })
             })
         });
@@ -421,7 +480,7 @@ impl DenseOps for burn::backend::NdArray {}
 struct Dense;
 
 /// What [`Dense`]'s backward step keeps: the input, the weight, the output (with an
-/// activation), the addend's shape, the samples and the slope.
+/// activation), the addend's shape, the samples, the slope and the scale.
 #[derive(Debug, Clone)]
 struct DenseState<B: Backend> {
     x: FloatTensor<B>,
@@ -430,6 +489,7 @@ struct DenseState<B: Backend> {
     add_shape: Vec<usize>,
     batch: usize,
     slope: Option<f32>,
+    scale: Option<Arc<Vec<f32>>>,
 }
 
 impl<B: Backend + DenseOps> Backward<B, 3> for Dense {
@@ -454,13 +514,14 @@ impl<B: Backend + DenseOps> Backward<B, 3> for Dense {
         if let (true, Some(node)) = (pass_on, &pa) {
             grads.register::<B>(node.id, g.clone());
         }
+        let scale = st.scale.as_deref().map(|v| &v[..]);
         let d = with_floats::<B, _>(&st.x, |x| {
             with_floats::<B, _>(&st.w, |w| {
                 with_floats::<B, _>(&g, |g| match &st.y {
                     Some(y) => with_floats::<B, _>(y, |y| {
-                        dense_backward(x, w, y, g, add_len, sizes, st.slope, want)
+                        dense_backward(x, w, y, g, add_len, sizes, st.slope, scale, want)
                     }),
-                    None => dense_backward(x, w, &[], g, add_len, sizes, None, want),
+                    None => dense_backward(x, w, &[], g, add_len, sizes, None, scale, want),
                 })
             })
         });
@@ -483,12 +544,13 @@ impl<B: Backend + DenseOps, C: CheckpointStrategy> DenseOps for Autodiff<B, C> {
         add: FloatTensor<Self>,
         batch: usize,
         slope: Option<f32>,
+        scale: Option<Arc<Vec<f32>>>,
     ) -> FloatTensor<Self> {
         let (x, nx) = x.into_parts();
         let (w, nw) = w.into_parts();
         let (add, na) = add.into_parts();
         let add_shape = add.shape().to_vec();
-        let y = B::train_dense(x.clone(), w.clone(), add, batch, slope);
+        let y = B::train_dense(x.clone(), w.clone(), add, batch, slope, scale.clone());
         match Dense.prepare::<C>([nx, nw, na]).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
                 let state = DenseState {
@@ -498,6 +560,7 @@ impl<B: Backend + DenseOps, C: CheckpointStrategy> DenseOps for Autodiff<B, C> {
                     add_shape,
                     batch,
                     slope,
+                    scale,
                 };
                 prep.finish(state, y)
             }
@@ -506,15 +569,16 @@ impl<B: Backend + DenseOps, C: CheckpointStrategy> DenseOps for Autodiff<B, C> {
     }
 }
 
-/// `act(x W + add)` on high-level tensors: `x` `[.., input]` (all leading axes are rows),
-/// `w` `[input, output]`, `add` `[batch, 1, output]` (one row per sample, the rows in
-/// `batch` equal runs) or `[batch, rows / batch, output]`; the leaky ReLU of `slope` when
-/// there is one.
+/// `act(scale (x W) + add)` on high-level tensors: `x` `[.., input]` (all leading axes are
+/// rows), `w` `[input, output]`, `add` `[batch, 1, output]` (one row per sample, the rows in
+/// `batch` equal runs) or `[batch, rows / batch, output]`, `scale` a constant per row of a
+/// sample (row `i` of `x` takes `scale[i % scale.len()]`) or none; the leaky ReLU of `slope` when there is one.
 pub fn dense<const D: usize>(
     x: Tensor<D>,
     w: Tensor<2>,
     add: Tensor<3>,
     slope: Option<f64>,
+    scale: Option<&Arc<Vec<f32>>>,
 ) -> Tensor<D> {
     let dims = x.dims();
     let input = dims[D - 1];
@@ -535,6 +599,7 @@ pub fn dense<const D: usize>(
         add.into_dispatch(),
         batch,
         slope.map(|s| s as f32),
+        scale.cloned(),
     ));
     let mut out = dims;
     out[D - 1] = output;
@@ -545,7 +610,8 @@ pub fn dense<const D: usize>(
 #[cfg(all(test, not(any(feature = "cuda", feature = "wgpu"))))]
 mod tests {
     use burn::tensor::activation::leaky_relu;
-    use burn::tensor::{Device, Distribution, Tensor};
+    use burn::tensor::{Device, Distribution, Tensor, TensorData};
+    use std::sync::Arc;
 
     use super::{Wanted, dense, dense_backward, dense_forward};
     use crate::model::host::floats;
@@ -565,8 +631,10 @@ mod tests {
     }
 
     /// The operation against burn's `x W + add` (and `leaky_relu`) on `[b, n, input]`, with
-    /// a per-sample addend (`per` 1) or a per-row one (`per` n): values and the gradients
-    /// of x, W and the addend within 1e-5 of their largest.
+    /// a per-sample addend (`per` 1) or a per-row one (`per` n), and with `scaled` the
+    /// product times a constant per row of a sample first (`s (x W) + add`, as FeaStNet's
+    /// `1 / |N_i|`): values and the gradients of x, W and the addend within 1e-5 of their
+    /// largest.
     fn against_burn(
         b: usize,
         n: usize,
@@ -574,6 +642,7 @@ mod tests {
         output: usize,
         per: usize,
         slope: Option<f64>,
+        scaled: bool,
     ) {
         let seed = (b * 1000 + n + input * 7 + output * 13 + per) as u64;
         let (x, w, a) = (
@@ -582,13 +651,28 @@ mod tests {
             leaf([b, per, output], seed + 2),
         );
         let (x2, w2, a2) = (twin(&x), twin(&w), twin(&a));
-        let got = dense(x.clone(), w.clone(), a.clone(), slope);
-        let z = x2.clone().matmul(w2.clone().unsqueeze::<3>()) + a2.clone();
+        // 1, 1/2, .. 1/7 over the rows of a sample, as the inverse degrees of a mesh.
+        let scale = Arc::new((0..n).map(|i| 1.0 / (1 + i % 7) as f32).collect::<Vec<_>>());
+        let got = dense(
+            x.clone(),
+            w.clone(),
+            a.clone(),
+            slope,
+            scaled.then_some(&scale),
+        );
+        let mut z = x2.clone().matmul(w2.clone().unsqueeze::<3>());
+        if scaled {
+            let device = z.device();
+            z = z * Tensor::<3>::from_data(TensorData::new(scale.to_vec(), [1, n, 1]), &device);
+        }
+        let z = z + a2.clone();
         let want = match slope {
             Some(s) => leaky_relu(z, s),
             None => z,
         };
-        let what = format!("[{b}, {n}, {input}] -> {output}, addend per {per}, {slope:?}");
+        let what = format!(
+            "[{b}, {n}, {input}] -> {output}, addend per {per}, {slope:?}, scaled {scaled}"
+        );
         let err = rel(&floats(got.clone().inner()), &floats(want.clone().inner()));
         assert!(err < 1e-5, "values differ by {err}: {what}");
         let r = Tensor::<3>::random(got.dims(), Distribution::Normal(0.0, 1.0), &got.device());
@@ -611,15 +695,20 @@ mod tests {
 
     /// Shapes of the training step's layers: one sample and several, rows that fill several
     /// blocks and groups and end in a partial block, a single row per sample, per-sample and
-    /// per-row addends, with and without the leaky ReLU.
+    /// per-row addends, with and without the leaky ReLU, with and without a scale per row
+    /// (the residual blocks' convolutions: several samples of rows over several blocks).
     #[test]
     fn dense_is_burns_linear_and_leaky_relu_with_their_gradients() {
-        against_burn(1, 5, 3, 4, 1, Some(0.1));
-        against_burn(4, 2967, 64, 48, 1, Some(0.1));
-        against_burn(3, 1000, 70, 128, 1000, Some(0.2));
-        against_burn(2, 700, 32, 3, 1, None);
-        against_burn(2, 700, 48, 48, 700, None);
-        against_burn(5, 1, 256, 64, 1, Some(0.1));
+        against_burn(1, 5, 3, 4, 1, Some(0.1), false);
+        against_burn(4, 2967, 64, 48, 1, Some(0.1), false);
+        against_burn(3, 1000, 70, 128, 1000, Some(0.2), false);
+        against_burn(2, 700, 32, 3, 1, None, false);
+        against_burn(2, 700, 48, 48, 700, None, false);
+        against_burn(5, 1, 256, 64, 1, Some(0.1), false);
+        against_burn(1, 5, 3, 4, 1, Some(0.1), true);
+        against_burn(3, 1000, 264, 48, 1, Some(0.1), true);
+        against_burn(2, 700, 48, 48, 700, None, true);
+        against_burn(2, 700, 32, 16, 1, None, true);
     }
 
     /// Rows without batch axes (the spatial transformer's output layer), and inputs or
@@ -630,7 +719,7 @@ mod tests {
         let (x, w) = (leaf([6, 64], 41), leaf([64, 9], 42));
         let a = leaf([1, 1, 9], 43);
         let (x2, w2, a2) = (twin(&x), twin(&w), twin(&a));
-        let got = dense(x.clone(), w.clone(), a.clone(), None);
+        let got = dense(x.clone(), w.clone(), a.clone(), None, None);
         let want = x2.clone().matmul(w2.clone()) + a2.clone().reshape([1, 9]);
         let r = Tensor::<2>::random([6, 9], Distribution::Normal(0.0, 1.0), &got.device());
         let (g1, g2) = (
@@ -652,7 +741,7 @@ mod tests {
         let ac = Tensor::<3>::zeros([1, 1, 8], &ad);
         let w = leaf([16, 8], 45);
         let w2 = twin(&w);
-        let got = dense(xc.clone(), w.clone(), ac, Some(0.1));
+        let got = dense(xc.clone(), w.clone(), ac, Some(0.1), None);
         let want = leaky_relu(xc.clone().matmul(w2.clone().unsqueeze::<3>()), 0.1);
         let r = Tensor::<3>::random([2, 300, 8], Distribution::Normal(0.0, 1.0), &ad);
         let g1 = (got.clone() * r.clone()).sum().backward();
@@ -670,7 +759,7 @@ mod tests {
     fn dense_gradient_at_zero_is_the_slope_and_the_sums_repeat() {
         // x W + a = [0, 0, 2, -1] with w = 1 and a = 0 (-0 * 1 + 0 is +0).
         let x = [0.0f32, -0.0, 2.0, -1.0];
-        let y = dense_forward(&x, &[1.0], &[0.0], [1, 1, 1], Some(0.5));
+        let y = dense_forward(&x, &[1.0], &[0.0], [1, 1, 1], Some(0.5), None);
         assert_eq!(y, vec![0.0, 0.0, 2.0, -0.5]);
         let all = Wanted {
             x: true,
@@ -679,13 +768,24 @@ mod tests {
         };
         // The backward pass reads the output's sign: an output of -0 takes the slope too.
         for y in [y, vec![0.0, -0.0, 2.0, -0.5]] {
-            let g = dense_backward(&x, &[1.0], &y, &[1.0; 4], 1, [1, 1, 1], Some(0.5), all);
+            let g = dense_backward(
+                &x,
+                &[1.0],
+                &y,
+                &[1.0; 4],
+                1,
+                [1, 1, 1],
+                Some(0.5),
+                None,
+                all,
+            );
             assert_eq!(g.x.unwrap(), vec![0.5, 0.5, 1.0, 0.5]);
             // dW = sum of x * dz = 0 * 0.5 + (-0) * 0.5 + 2 * 1 + (-1) * 0.5.
             assert_eq!(g.w.unwrap(), vec![1.5]);
             assert_eq!(g.add.unwrap(), vec![2.5]);
         }
         // Many rows on a pool of one thread and of four: the same bits.
+        // With a scale per row of a sample too (two samples of 2,500 rows).
         let (rows, input, output) = (5000, 17, 9);
         let v = |n: usize, k: usize| -> Vec<f32> {
             (0..n)
@@ -698,23 +798,28 @@ mod tests {
             v(output, 3),
             v(rows * output, 11),
         );
-        let run = |threads: usize| {
+        let scale: Vec<f32> = (0..rows / 2).map(|i| 1.0 / (1 + i % 5) as f32).collect();
+        let run = |threads: usize, scale: Option<&[f32]>| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .unwrap();
             pool.install(|| {
-                let y = dense_forward(&x, &w, &a, [input, output, 1], Some(0.1));
-                let d = dense_backward(&x, &w, &y, &g, output, [input, output, 1], Some(0.1), all);
+                let y = dense_forward(&x, &w, &a, [input, output, 1], Some(0.1), scale);
+                let sizes = [input, output, 1];
+                let d = dense_backward(&x, &w, &y, &g, output, sizes, Some(0.1), scale, all);
                 (y, d.x.unwrap(), d.w.unwrap(), d.add.unwrap())
             })
         };
         let bits = |r: (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>)| {
             [r.0, r.1, r.2, r.3].map(|v| v.into_iter().map(f32::to_bits).collect::<Vec<_>>())
         };
-        assert!(
-            bits(run(1)) == bits(run(4)),
-            "the same values and gradients on 1 and 4 threads"
-        );
+        for scale in [None, Some(&scale[..])] {
+            assert!(
+                bits(run(1, scale)) == bits(run(4, scale)),
+                "the same values and gradients on 1 and 4 threads (scaled: {})",
+                scale.is_some()
+            );
+        }
     }
 }

@@ -59,14 +59,6 @@ pub(super) fn host_dense(l: &Linear, norm: Option<&LayerNorm>, leaky: bool) -> H
 /// host path of [`super::fused`] reads it here).
 pub const NORM_EPSILON: f64 = 1e-5;
 
-/// `x` through `norm` if there is one.
-pub fn normed<const D: usize>(norm: Option<&LayerNorm>, x: Tensor<D>) -> Tensor<D> {
-    match norm {
-        Some(n) => n.forward(x),
-        None => x,
-    }
-}
-
 /// The leaky ReLU, `max(x, slope x)` for `slope` < 1.
 ///
 /// Under autodiff burn composes `leaky_relu` from a comparison, a scaled copy and a
@@ -106,7 +98,7 @@ pub fn linear_act<const D: usize>(l: &Linear, x: Tensor<D>, slope: Option<f64>) 
             Some(b) => b.val().reshape([1, 1, o]),
             None => Tensor::zeros([1, 1, o], &x.device()),
         };
-        return super::dense::dense(x, l.weight.val(), add, slope);
+        return super::dense::dense(x, l.weight.val(), add, slope, None);
     }
     maybe_leaky(l.forward(x), slope)
 }
@@ -262,7 +254,7 @@ impl SplitLinear {
                 add.unwrap_or_else(|| Tensor::zeros([1, 1, o], &per_vertex[0].1.device()));
             for (j, (l, x)) in per_vertex.into_iter().enumerate() {
                 let act = if j == last { slope } else { None };
-                sum = super::dense::dense(x, l.weight.val(), sum, act);
+                sum = super::dense::dense(x, l.weight.val(), sum, act, None);
             }
             return sum;
         }
@@ -439,13 +431,32 @@ impl FeaStConv {
     /// operations where a GPU backend is; tests and benchmarks pick either), then one
     /// linear map from `M * input` to `output`.
     pub fn forward(&self, x: Tensor<3>, g: &Graph, how: &Aggregation) -> Tensor<3> {
+        self.forward_act(x, g, how, None)
+    }
+
+    /// [`FeaStConv::forward`], then the leaky ReLU of `slope` when there is one. In
+    /// training on the CPU backends the output map, the `1 / |N_i|` scale, the bias and
+    /// the activation are one operation ([`super::dense`]).
+    pub fn forward_act(
+        &self,
+        x: Tensor<3>,
+        g: &Graph,
+        how: &Aggregation,
+        slope: Option<f64>,
+    ) -> Tensor<3> {
         let ux = linear_act(&self.u, x.clone(), None); // [B, N, M]
         let z = match how {
             Aggregation::Fused => feast::aggregate(x, ux, self.c.val(), &g.host_slots),
             Aggregation::Tensors(rows) => self.aggregate_tensors(x, ux, g, rows),
         }; // [B, N, M * C]
+        let bias = self.bias.val().reshape([1, 1, self.output]);
+        #[cfg(feature = "flex")]
+        if dense_path(&z) {
+            let w = self.lin.weight.val();
+            return super::dense::dense(z, w, bias, slope, Some(&g.host_inv_degree));
+        }
         let y = linear_act(&self.lin, z, None); // [B, N, O]
-        y * g.inv_degree.clone() + self.bias.val().reshape([1, 1, self.output])
+        maybe_leaky(y * g.inv_degree.clone() + bias, slope)
     }
 
     /// The head-weighted sums with burn's tensor operations, on padded neighbourhoods (K

@@ -17,7 +17,7 @@ pub mod trainops;
 
 pub use layers::{Aggregation, FeaStConv, Graph, Mlp, SplitLinear, linear_act};
 
-use layers::{leaky, maybe_norm, norm_act, normed};
+use layers::{maybe_norm, norm_act};
 
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, Linear, LinearConfig};
@@ -239,8 +239,11 @@ impl ConvStack {
         }
         let how = g.aggregation(h.dims()[0], &h.device());
         for (i, conv) in self.blocks.iter().enumerate() {
-            let y = conv.forward(Tensor::cat(vec![h.clone(), xyz.clone()], 2), g, &how); // [B, N, C]
-            h = h + leaky(normed(self.norms.get(i), y), self.slope);
+            let x = Tensor::cat(vec![h.clone(), xyz.clone()], 2);
+            let y = norm_act(self.norms.get(i), self.slope, |act| {
+                conv.forward_act(x, g, &how, act)
+            }); // [B, N, C]
+            h = h + y;
         }
         h
     }
