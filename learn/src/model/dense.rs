@@ -11,11 +11,12 @@
 //! traffic (each output allocated zeroed, then copied into an aligned buffer), 11% in the
 //! leaky ReLU's two passes and 5% in the bias's addition and its gradient's sum. Here the
 //! output is written once, in blocks of [`ROWS`] rows: the addend, then the product added
-//! to it (`gemm`), then the activation, while the block is in cache. The backward pass
-//! walks the same blocks: the activation's gradient (1 where the output is positive, the
-//! slope elsewhere: the leaky ReLU keeps the sign for a slope of 0 or more), the input's
-//! gradient `dz W^T`, and `x^T dz` and the addend's sums into the weight's and addend's
-//! gradients. Those sums run over at most [`GROUPS`] fixed ranges of whole blocks, each
+//! to it (`gemm`; with a scale, the product first and then `s` times it plus the addend),
+//! then the activation, while the block is in cache. The backward pass walks the same
+//! blocks: the activation's gradient `dz` (1 where the output is positive, the slope
+//! elsewhere: the leaky ReLU keeps the sign for a slope of 0 or more), the input's gradient
+//! `dp W^T` with `dp = s dz` (`dz` without a scale), and `x^T dp` and the addend's sums of
+//! `dz` into the weight's and addend's gradients. Those sums run over at most [`GROUPS`] fixed ranges of whole blocks, each
 //! summed in order and then added in order, so they do not depend on how rayon schedules the ranges: the same
 //! inputs give the same gradients bit for bit.
 //!
@@ -363,7 +364,7 @@ pub fn dense_backward(
                     }
                 };
                 if let Some(part) = gx_part.as_deref_mut() {
-                    // dz [rows, output] times W^T [output, input] (w [input, output] read
+                    // dp [rows, output] times W^T [output, input] (w [input, output] read
                     // with swapped strides) into the block of x's gradient.
                     product(
                         [rows, input, output],
@@ -377,7 +378,7 @@ pub fn dense_backward(
                     );
                 }
                 if want.w {
-                    // x^T [input, rows] (x's block read with swapped strides) times dz
+                    // x^T [input, rows] (x's block read with swapped strides) times dp
                     // [rows, output], added to the group's sum [input, output].
                     product(
                         [input, output, rows],
@@ -572,7 +573,8 @@ impl<B: Backend + DenseOps, C: CheckpointStrategy> DenseOps for Autodiff<B, C> {
 /// `act(scale (x W) + add)` on high-level tensors: `x` `[.., input]` (all leading axes are
 /// rows), `w` `[input, output]`, `add` `[batch, 1, output]` (one row per sample, the rows in
 /// `batch` equal runs) or `[batch, rows / batch, output]`, `scale` a constant per row of a
-/// sample (row `i` of `x` takes `scale[i % scale.len()]`) or none; the leaky ReLU of `slope` when there is one.
+/// sample (row `i` of `x` takes `scale[i % scale.len()]`) or none; the leaky ReLU of
+/// `slope` when there is one.
 pub fn dense<const D: usize>(
     x: Tensor<D>,
     w: Tensor<2>,
@@ -631,7 +633,8 @@ mod tests {
     }
 
     /// The operation against burn's `x W + add` (and `leaky_relu`) on `[b, n, input]`, with
-    /// a per-sample addend (`per` 1) or a per-row one (`per` n), and with `scaled` the
+    /// a per-sample addend (`per` 1), a per-row one (`per` n) or one for all samples (`per`
+    /// 0: `[1, 1, output]`, a bias), and with `scaled` the
     /// product times a constant per row of a sample first (`s (x W) + add`, as FeaStNet's
     /// `1 / |N_i|`): values and the gradients of x, W and the addend within 1e-5 of their
     /// largest.
@@ -648,7 +651,11 @@ mod tests {
         let (x, w, a) = (
             leaf([b, n, input], seed),
             leaf([input, output], seed + 1),
-            leaf([b, per, output], seed + 2),
+            if per == 0 {
+                leaf([1, 1, output], seed + 2)
+            } else {
+                leaf([b, per, output], seed + 2)
+            },
         );
         let (x2, w2, a2) = (twin(&x), twin(&w), twin(&a));
         // 1, 1/2, .. 1/7 over the rows of a sample, as the inverse degrees of a mesh.
@@ -709,6 +716,10 @@ mod tests {
         against_burn(3, 1000, 264, 48, 1, Some(0.1), true);
         against_burn(2, 700, 48, 48, 700, None, true);
         against_burn(2, 700, 32, 16, 1, None, true);
+        // The residual blocks' convolutions: a bias shared by four samples, the scale, the
+        // activation; and a per-row addend with both.
+        against_burn(4, 600, 48, 32, 0, Some(0.1), true);
+        against_burn(2, 700, 24, 16, 700, Some(0.2), true);
     }
 
     /// Rows without batch axes (the spatial transformer's output layer), and inputs or
