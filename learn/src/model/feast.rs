@@ -167,24 +167,81 @@ pub(super) fn weights_factored(
     }
 }
 
-/// `y += a x`, in the widest SIMD the CPU offers (`simd`; the tail shorter than a vector
-/// with a masked load and store).
+/// One used slot's share of the backward pass, `m = q.len()` heads of `ch = xj.len()`
+/// features: `g[h] = gz_h . xj` for each head's output gradient `gz_h` (row `h` of `gzi`,
+/// `[M, C]`), and `gxj += sum_h q[h] gz_h`. For each group of [`HEADS_PER_SWEEP`] heads,
+/// one sweep over the features loads each of their gradients' vectors once for both: the
+/// dot products' sums stay in registers, and so does each vector of `gxj` while the group's
+/// heads are added to it. Each element sees the same operations in the same order as
+/// [`dot`] per head and then `gxj += q[h] gz_h` per head (the loop before session 70, which
+/// loaded `gxj` and `gz_h` once per head and pass), so the bits are the same.
 #[inline(always)]
-fn axpy<S: Simd>(simd: S, y: &mut [f32], a: f32, x: &[f32]) {
-    debug_assert_eq!(y.len(), x.len());
-    let (yh, yt) = S::as_mut_simd_f32s(y);
-    let (xh, xt) = S::as_simd_f32s(x);
-    let av = simd.splat_f32s(a);
-    for (o, &v) in yh.iter_mut().zip(xh) {
-        *o = simd.mul_add_e_f32s(av, v, *o);
-    }
-    if !yt.is_empty() {
-        let (o, v) = (simd.partial_load_f32s(yt), simd.partial_load_f32s(xt));
-        simd.partial_store_f32s(yt, simd.mul_add_e_f32s(av, v, o));
+fn slot_backward<S: Simd>(
+    simd: S,
+    gzi: &[f32],
+    xj: &[f32],
+    q: &[f32],
+    gxj: &mut [f32],
+    g: &mut [f32],
+) {
+    let (m, ch) = (q.len(), xj.len());
+    debug_assert_eq!(gzi.len(), m * ch);
+    for h0 in (0..m).step_by(HEADS_PER_SWEEP) {
+        let heads = &gzi[h0 * ch..(h0 + HEADS_PER_SWEEP).min(m) * ch];
+        let (q, g) = (&q[h0..], &mut g[h0..]);
+        match heads.len() / ch {
+            1 => slot_group::<S, 1>(simd, heads, xj, q, gxj, g),
+            2 => slot_group::<S, 2>(simd, heads, xj, q, gxj, g),
+            3 => slot_group::<S, 3>(simd, heads, xj, q, gxj, g),
+            _ => slot_group::<S, HEADS_PER_SWEEP>(simd, heads, xj, q, gxj, g),
+        }
     }
 }
 
-/// `a . b`, in the widest SIMD the CPU offers (as [`axpy`]).
+/// [`slot_backward`] for `H` heads: `gz` holds their `H` rows of `xj.len()` features, `q`
+/// and `g` start at the first of them.
+#[inline(always)]
+fn slot_group<S: Simd, const H: usize>(
+    simd: S,
+    gz: &[f32],
+    xj: &[f32],
+    q: &[f32],
+    gxj: &mut [f32],
+    g: &mut [f32],
+) {
+    let ch = xj.len();
+    let zero = simd.splat_f32s(0.0);
+    let rows: [&[f32]; H] = std::array::from_fn(|h| &gz[h * ch..(h + 1) * ch]);
+    let qv: [S::f32s; H] = std::array::from_fn(|h| simd.splat_f32s(q[h]));
+    let mut dots = [zero; H];
+    let (xh, xt) = S::as_simd_f32s(xj);
+    let (gh, gt) = S::as_mut_simd_f32s(gxj);
+    for (v, (o, &xv)) in gh.iter_mut().zip(xh).enumerate() {
+        let mut acc = *o;
+        for h in 0..H {
+            let gv = S::as_simd_f32s(rows[h]).0[v];
+            dots[h] = simd.mul_add_e_f32s(gv, xv, dots[h]);
+            acc = simd.mul_add_e_f32s(qv[h], gv, acc);
+        }
+        *o = acc;
+    }
+    if !gt.is_empty() {
+        let xv = simd.partial_load_f32s(xt);
+        let mut acc = simd.partial_load_f32s(gt);
+        for h in 0..H {
+            let gv = simd.partial_load_f32s(S::as_simd_f32s(rows[h]).1);
+            dots[h] = simd.mul_add_e_f32s(gv, xv, dots[h]);
+            acc = simd.mul_add_e_f32s(qv[h], gv, acc);
+        }
+        simd.partial_store_f32s(gt, acc);
+    }
+    for h in 0..H {
+        g[h] = simd.reduce_sum_f32s(dots[h]);
+    }
+}
+
+/// `a . b`, in the widest SIMD the CPU offers (the tail shorter than a vector with a masked
+/// load).
 #[inline(always)]
 pub(super) fn dot<S: Simd>(simd: S, a: &[f32], b: &[f32]) -> f32 {
     debug_assert_eq!(a.len(), b.len());
@@ -516,12 +573,10 @@ impl WithSimd for BackwardItem<'_> {
                 weights_factored(pj, qi, (ui, &uxs[j * m..(j + 1) * m], c), 1.0, &mut q);
                 let xj = &xs[j * ch..(j + 1) * ch];
                 let gxj = &mut gxs[j * ch..(j + 1) * ch];
+                slot_backward(simd, gzi, xj, &q, gxj, &mut g);
                 let mut total = 0.0;
                 for h in 0..m {
-                    let gzh = &gzi[h * ch..(h + 1) * ch];
-                    g[h] = dot(simd, gzh, xj);
                     total += q[h] * g[h];
-                    axpy(simd, gxj, q[h], gzh);
                 }
                 for h in 0..m {
                     let dl = q[h] * (g[h] - total);

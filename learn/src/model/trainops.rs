@@ -9,8 +9,10 @@
 //! step put 9% of it in the max pools' forward passes and 6.5% in the leaky ReLU's
 //! (docs/bench.md, "The max pools and the leaky ReLU as operations"). Here:
 //!
-//! - a max pool is one pass that keeps each maximum's row (`u32` per output value), and its
-//!   backward adds each output gradient to that row;
+//! - a max pool is one pass that keeps each maximum's row (`u32` per output value), in
+//!   SIMD registers at the CPU's widest level ([`pulp`]; compiled plainly, the loop was one
+//!   scalar comparison per value, 5.7% of a step), and its backward adds each output
+//!   gradient to that row;
 //! - the leaky ReLU is one pass forward and one backward (the gradient 1 where `x > 0`, the
 //!   slope elsewhere, as [`super::layers::leaky`]'s composition gives).
 //!
@@ -28,9 +30,10 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Dispatch, TensorMetadata, backend_extension};
 use burn::tensor::Tensor;
+use pulp::{Simd, WithSimd};
 use rayon::prelude::*;
 
-use super::feast::{from_floats, with_floats};
+use super::feast::{Level, from_floats, with_floats};
 
 /// Output rows per rayon task (each a few hundred comparisons).
 const ROWS_PER_TASK: usize = 256;
@@ -66,6 +69,18 @@ pub fn pool_forward(
     k: usize,
     q: usize,
 ) -> (Vec<f32>, Vec<u32>) {
+    pool_forward_with(Level::Best, table, l, rows, k, q)
+}
+
+/// [`pool_forward`] at `level`.
+fn pool_forward_with(
+    level: Level,
+    table: &[f32],
+    l: usize,
+    rows: &PoolRows,
+    k: usize,
+    q: usize,
+) -> (Vec<f32>, Vec<u32>) {
     assert!(k > 0 && l > 0, "a max pool over no rows or no features");
     let mut out = vec![0.0f32; q * l];
     let mut arg = vec![0u32; q * l];
@@ -73,27 +88,94 @@ pub fn pool_forward(
         .zip(arg.par_chunks_mut(ROWS_PER_TASK * l))
         .enumerate()
         .for_each(|(t, (out, arg))| {
-            for (i, (m, a)) in out
-                .chunks_exact_mut(l)
-                .zip(arg.chunks_exact_mut(l))
-                .enumerate()
-            {
-                let qi = t * ROWS_PER_TASK + i;
-                let first = rows.row(qi, 0, k);
-                m.copy_from_slice(&table[first * l..(first + 1) * l]);
-                a.fill(first as u32);
-                for j in 1..k {
-                    let r = rows.row(qi, j, k);
-                    let y = &table[r * l..(r + 1) * l];
-                    for c in 0..l {
-                        let take = (y[c] > m[c]) | (y[c].is_nan() & !m[c].is_nan());
-                        m[c] = if take { y[c] } else { m[c] };
-                        a[c] = if take { r as u32 } else { a[c] };
-                    }
-                }
-            }
+            level.run(PoolTask {
+                first: t * ROWS_PER_TASK,
+                out,
+                arg,
+                table,
+                l,
+                rows,
+                k,
+            })
         });
     (out, arg)
+}
+
+/// One rayon task of [`pool_forward`]: the output rows from `first` on, `out` and `arg`
+/// holding `out.len() / L` of them. Run at the CPU's widest SIMD ([`pulp`]): per output row
+/// and vector block of the features, the running maxima and their rows stay in registers
+/// while the row's K table rows are compared in turn (the plain loop compiled to one
+/// scalar comparison per value).
+struct PoolTask<'a> {
+    first: usize,
+    out: &'a mut [f32],
+    arg: &'a mut [u32],
+    table: &'a [f32],
+    l: usize,
+    rows: &'a PoolRows,
+    k: usize,
+}
+
+impl WithSimd for PoolTask<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let PoolTask {
+            first,
+            out,
+            arg,
+            table,
+            l,
+            rows,
+            k,
+        } = self;
+        // Take y over the maximum m where y > m, or where y is a NaN and m is not: the
+        // first of equal values stays, and so does a NaN once seen.
+        let take = |y: S::f32s, m: S::f32s| {
+            let nan_y = simd.not_m32s(simd.equal_f32s(y, y));
+            let nan_m = simd.not_m32s(simd.equal_f32s(m, m));
+            simd.or_m32s(
+                simd.greater_than_f32s(y, m),
+                simd.and_m32s(nan_y, simd.not_m32s(nan_m)),
+            )
+        };
+        for (i, (mo, ao)) in out
+            .chunks_exact_mut(l)
+            .zip(arg.chunks_exact_mut(l))
+            .enumerate()
+        {
+            let qi = first + i;
+            let r0 = rows.row(qi, 0, k);
+            let row0 = &table[r0 * l..(r0 + 1) * l];
+            let (mh, mt) = S::as_mut_simd_f32s(mo);
+            let (ah, at) = S::as_mut_simd_u32s(ao);
+            let (h0, t0) = S::as_simd_f32s(row0);
+            for (v, (mv, av)) in mh.iter_mut().zip(ah.iter_mut()).enumerate() {
+                let (mut m, mut a) = (h0[v], simd.splat_u32s(r0 as u32));
+                for j in 1..k {
+                    let r = rows.row(qi, j, k);
+                    let y = S::as_simd_f32s(&table[r * l..(r + 1) * l]).0[v];
+                    let t = take(y, m);
+                    m = simd.select_f32s(t, y, m);
+                    a = simd.select_u32s(t, simd.splat_u32s(r as u32), a);
+                }
+                (*mv, *av) = (m, a);
+            }
+            if !mt.is_empty() {
+                let (mut m, mut a) = (simd.partial_load_f32s(t0), simd.splat_u32s(r0 as u32));
+                for j in 1..k {
+                    let r = rows.row(qi, j, k);
+                    let y = simd.partial_load_f32s(S::as_simd_f32s(&table[r * l..(r + 1) * l]).1);
+                    let t = take(y, m);
+                    m = simd.select_f32s(t, y, m);
+                    a = simd.select_u32s(t, simd.splat_u32s(r as u32), a);
+                }
+                simd.partial_store_f32s(mt, m);
+                simd.partial_store_u32s(at, a);
+            }
+        }
+    }
 }
 
 /// The max pool's backward pass: each output gradient added to its maximum's table row.
@@ -273,7 +355,7 @@ pub(crate) mod tests {
     use burn::tensor::activation::leaky_relu;
     use burn::tensor::{Device, Distribution, Int, Tensor, TensorData};
 
-    use super::{PoolRows, leaky, max_pool};
+    use super::{Level, PoolRows, leaky, max_pool};
     use crate::model::host::{floats, gather_max, max_axis1};
 
     /// Two leaves on the autodiff device with the same normal random values.
@@ -377,6 +459,52 @@ pub(crate) mod tests {
             out[3].is_nan(),
             "the NaN of row 2 stays before row 3's 9: {out:?}"
         );
+    }
+
+    /// Every SIMD level's pool is the plain loop's, bit for bit and row for row: 37
+    /// features (whole vectors and a tail at every width), values with many ties and some
+    /// NaNs, gathered and consecutive rows.
+    #[test]
+    fn every_simd_level_pools_as_the_plain_loop() {
+        let (r, l, k, q) = (60, 37, 7, 90);
+        let table: Vec<f32> = (0..r * l)
+            .map(|i| match (i * 2_654_435_761usize) % 97 {
+                0 => f32::NAN,
+                v => (v % 9) as f32 - 4.0,
+            })
+            .collect();
+        // The loop before session 70, one value at a time.
+        let plain = |table: &[f32], rows: &PoolRows| {
+            let (mut out, mut arg) = (vec![0.0f32; q * l], vec![0u32; q * l]);
+            for qi in 0..q {
+                for c in 0..l {
+                    let first = rows.row(qi, 0, k);
+                    let (mut m, mut a) = (table[first * l + c], first as u32);
+                    for j in 1..k {
+                        let row = rows.row(qi, j, k);
+                        let y = table[row * l + c];
+                        if y > m || (y.is_nan() && !m.is_nan()) {
+                            (m, a) = (y, row as u32);
+                        }
+                    }
+                    (out[qi * l + c], arg[qi * l + c]) = (m, a);
+                }
+            }
+            (out, arg)
+        };
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let gathered = PoolRows::Gathered((0..q * k).map(|i| ((i * 31) % r) as u32).collect());
+        // Consecutive rows read q k table rows.
+        let long: Vec<f32> = (0..q * k * l).map(|i| table[i % (r * l)]).collect();
+        for (t, rows) in [(&table, &gathered), (&long, &PoolRows::Consecutive)] {
+            let (want, want_arg) = plain(t, rows);
+            assert!(want.iter().any(|v| v.is_nan()), "the test reaches a NaN");
+            for level in Level::all() {
+                let (out, arg) = super::pool_forward_with(level, t, l, rows, k, q);
+                assert_eq!(bits(&out), bits(&want), "{level:?}, {rows:?}");
+                assert_eq!(arg, want_arg, "{level:?}, {rows:?}");
+            }
+        }
     }
 
     /// The max over the middle axis under autodiff against `max_dim(1)`, at the forward
