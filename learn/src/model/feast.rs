@@ -187,9 +187,10 @@ fn slot_backward<S: Simd>(
     let (m, ch) = (q.len(), xj.len());
     debug_assert_eq!(gzi.len(), m * ch);
     for h0 in (0..m).step_by(HEADS_PER_SWEEP) {
-        let heads = &gzi[h0 * ch..(h0 + HEADS_PER_SWEEP).min(m) * ch];
+        let count = (m - h0).min(HEADS_PER_SWEEP);
+        let heads = &gzi[h0 * ch..(h0 + count) * ch];
         let (q, g) = (&q[h0..], &mut g[h0..]);
-        match heads.len() / ch {
+        match count {
             1 => slot_group::<S, 1>(simd, heads, xj, q, gxj, g),
             2 => slot_group::<S, 2>(simd, heads, xj, q, gxj, g),
             3 => slot_group::<S, 3>(simd, heads, xj, q, gxj, g),
@@ -272,7 +273,9 @@ struct Operands<'a> {
 }
 
 /// Heads whose sums one sweep over a vertex's neighbours accumulates, each in a SIMD
-/// register ([`ForwardRows`]).
+/// register ([`ForwardRows`]); in the backward pass, heads whose dot products and
+/// contributions to a neighbour's gradient one sweep over its features takes
+/// ([`slot_backward`]).
 pub(super) const HEADS_PER_SWEEP: usize = 4;
 
 /// One rayon task of the forward pass: the output rows from `first` on, `z` holding

@@ -158,14 +158,21 @@ fn gathered_maxima(level: Level, table: &[f32], rows: &[usize], k: usize, l: usi
     out
 }
 
-/// [`max_into`] on vector lanes: take y where y > m, or where y is NaN and m is not.
+/// The lanes where y takes over the running maximum m: y > m, or y is NaN and m is not (so
+/// the first of equal values stays, and a NaN once seen stays; also the training pools',
+/// [`super::trainops`]).
 #[inline(always)]
-fn nan_max<S: Simd>(simd: S, m: S::f32s, y: S::f32s) -> S::f32s {
-    let take = simd.or_m32s(
+pub(super) fn nan_takes<S: Simd>(simd: S, m: S::f32s, y: S::f32s) -> S::m32s {
+    simd.or_m32s(
         simd.greater_than_f32s(y, m),
         simd.and_m32s(simd.not_m32s(simd.equal_f32s(y, y)), simd.equal_f32s(m, m)),
-    );
-    simd.select_f32s(take, y, m)
+    )
+}
+
+/// [`max_into`] on vector lanes: y where it takes over m ([`nan_takes`]), else m.
+#[inline(always)]
+fn nan_max<S: Simd>(simd: S, m: S::f32s, y: S::f32s) -> S::f32s {
+    simd.select_f32s(nan_takes(simd, m, y), y, m)
 }
 
 /// The maximum over `count` rows (`row(i)`, each as long as `out`) into `out`, per
