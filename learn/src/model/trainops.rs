@@ -131,45 +131,53 @@ impl WithSimd for PoolTask<'_> {
             rows,
             k,
         } = self;
-        // Where y takes over the maximum m, as at inference: the first of equal values
-        // stays, and so does a NaN once seen.
-        let take = |y: S::f32s, m: S::f32s| nan_takes(simd, m, y);
         for (i, (mo, ao)) in out
             .chunks_exact_mut(l)
             .zip(arg.chunks_exact_mut(l))
             .enumerate()
         {
-            let qi = first + i;
-            let r0 = rows.row(qi, 0, k);
-            let row0 = &table[r0 * l..(r0 + 1) * l];
+            let row = |j: usize| rows.row(first + i, j, k);
             let (mh, mt) = S::as_mut_simd_f32s(mo);
             let (ah, at) = S::as_mut_simd_u32s(ao);
-            let (h0, t0) = S::as_simd_f32s(row0);
             for (v, (mv, av)) in mh.iter_mut().zip(ah.iter_mut()).enumerate() {
-                let (mut m, mut a) = (h0[v], simd.splat_u32s(r0 as u32));
-                for j in 1..k {
-                    let r = rows.row(qi, j, k);
-                    let y = S::as_simd_f32s(&table[r * l..(r + 1) * l]).0[v];
-                    let t = take(y, m);
-                    m = simd.select_f32s(t, y, m);
-                    a = simd.select_u32s(t, simd.splat_u32s(r as u32), a);
-                }
-                (*mv, *av) = (m, a);
+                (*mv, *av) = max_and_row(simd, k, row, l, table, |y| S::as_simd_f32s(y).0[v]);
             }
             if !mt.is_empty() {
-                let (mut m, mut a) = (simd.partial_load_f32s(t0), simd.splat_u32s(r0 as u32));
-                for j in 1..k {
-                    let r = rows.row(qi, j, k);
-                    let y = simd.partial_load_f32s(S::as_simd_f32s(&table[r * l..(r + 1) * l]).1);
-                    let t = take(y, m);
-                    m = simd.select_f32s(t, y, m);
-                    a = simd.select_u32s(t, simd.splat_u32s(r as u32), a);
-                }
+                let tail = |y: &[f32]| simd.partial_load_f32s(S::as_simd_f32s(y).1);
+                let (m, a) = max_and_row(simd, k, row, l, table, tail);
                 simd.partial_store_f32s(mt, m);
                 simd.partial_store_u32s(at, a);
             }
         }
     }
+}
+
+/// The maximum over the `k` table rows `row(0..k)` (each `l` long) of one vector block of
+/// the features (`load` reads it from a row), and the row each lane's maximum came from.
+/// A row takes over where [`nan_takes`] says, as at inference: the first of equal values
+/// stays, and so does a NaN once seen.
+#[inline(always)]
+fn max_and_row<S: Simd>(
+    simd: S,
+    k: usize,
+    row: impl Fn(usize) -> usize,
+    l: usize,
+    table: &[f32],
+    load: impl Fn(&[f32]) -> S::f32s,
+) -> (S::f32s, S::u32s) {
+    let r0 = row(0);
+    let (mut m, mut a) = (
+        load(&table[r0 * l..(r0 + 1) * l]),
+        simd.splat_u32s(r0 as u32),
+    );
+    for j in 1..k {
+        let r = row(j);
+        let y = load(&table[r * l..(r + 1) * l]);
+        let take = nan_takes(simd, m, y);
+        m = simd.select_f32s(take, y, m);
+        a = simd.select_u32s(take, simd.splat_u32s(r as u32), a);
+    }
+    (m, a)
 }
 
 /// The max pool's backward pass: each output gradient added to its maximum's table row.
