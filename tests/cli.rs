@@ -201,6 +201,23 @@ fn bad_outputs_and_bad_libraries_are_rejected() {
         out.to_str().unwrap(),
     ];
     fails(dir.path(), &args, "limits of LeftArm");
+    // A missing overlay mesh is named with the system's reason, not the OBJ reader's bare
+    // "open file failed"; a missing dataset folder is named as one.
+    let png = dir.path().join("x.png");
+    let missing = lib_dir.path().join("none.obj");
+    let args = [
+        "body",
+        "--overlay",
+        missing.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    fails(dir.path(), &args, "none.obj: No such file or directory");
+    let nowhere = lib_dir.path().join("no-data");
+    let args = ["data", "info", nowhere.to_str().unwrap()];
+    fails(dir.path(), &args, "there is no such folder");
 }
 
 #[test]

@@ -153,7 +153,25 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     .unwrap();
     let (ok, text) = train(&lr, &data, &run_dir, &[]);
     assert!(!ok && text.contains("another config"), "{text}");
-    // So is a resume on other data: the same drapes under a manifest that differs.
+    // The same drapes made again (another manifest: its drapes' stage times differ) serve
+    // to resume, as a long run needs on a fresh machine: the finished run stays as it is.
+    let again = tmp.path().join("data-again");
+    let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&again));
+    assert!(ok, "{text}");
+    assert_ne!(
+        std::fs::read(again.join("manifest.json")).unwrap(),
+        std::fs::read(data.join("manifest.json")).unwrap()
+    );
+    let (ok, text) = train(&cfg, &again, &run_dir, &[]);
+    assert!(
+        ok && text.contains("resuming on the same drapes made again"),
+        "{text}"
+    );
+    assert_eq!(
+        steps_before,
+        std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
+    );
+    // Other drapes are refused: a copy whose manifest names another shard.
     let copy = tmp.path().join("data-copy");
     std::fs::create_dir(&copy).unwrap();
     for entry in std::fs::read_dir(&data).unwrap() {
@@ -163,10 +181,13 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         }
     }
     let manifest = std::fs::read_to_string(copy.join("manifest.json")).unwrap();
-    std::fs::write(copy.join("manifest.json"), manifest + "\n").unwrap();
+    let mut m: serde_json::Value = serde_json::from_str(&manifest).unwrap();
+    m["shards"][0]["sha256"] = serde_json::Value::String("0".repeat(64));
+    std::fs::write(copy.join("manifest.json"), m.to_string()).unwrap();
     let (ok, text) = train(&cfg, &copy, &run_dir, &[]);
     assert!(
         !ok && text.contains("was trained on dataset tiny with manifest sha256")
+            && text.contains("these are other drapes")
             && text.contains("resume it with the data it started on"),
         "{text}"
     );

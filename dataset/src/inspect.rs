@@ -46,6 +46,9 @@ impl Stats {
 pub struct Info {
     /// Dataset name.
     pub name: String,
+    /// Its drapes' identity ([`crate::manifest::Manifest::drapes_sha256`]): the same for
+    /// the same drapes made again.
+    pub drapes_sha256: String,
     /// Garment and vertex count.
     pub garment: String,
     /// Garment vertices.
@@ -200,6 +203,7 @@ pub fn info(ds: &Dataset) -> Result<Info, DatasetError> {
     bytes += m.shards.iter().map(|s| s.bytes).sum::<u64>();
     Ok(Info {
         name: m.name.clone(),
+        drapes_sha256: m.drapes_sha256(),
         garment: c.garment.clone(),
         vertices: ds.statics.garment_vertices.len(),
         samples: Split::ALL.iter().map(|&s| (s, ds.count(s))).collect(),

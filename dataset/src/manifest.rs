@@ -214,6 +214,29 @@ impl Manifest {
         }
     }
 
+    /// sha256 of what a network trains on, hex: the config's hash, `static.safetensors`'s
+    /// and every shard's file, split, rows and sha256, in plan order. Two makings of one
+    /// config by one build give the same drapes, byte for byte, and so the same value, where
+    /// the manifest files differ (each records its git revision, its program's sha256 and
+    /// its drapes' stage times). A run resumes on data with this value
+    /// (`learn::run::prepare_folder`), so a dataset made again on a fresh machine serves.
+    pub fn drapes_sha256(&self) -> String {
+        let mut text = format!(
+            "drapes of config {}, static {}\n",
+            self.config_sha256, self.static_sha256
+        );
+        for s in &self.shards {
+            text.push_str(&format!(
+                "{} {} {} {}\n",
+                s.file,
+                s.split.name(),
+                s.rows,
+                s.sha256
+            ));
+        }
+        crate::generate::sha256(text.as_bytes())
+    }
+
     /// The config back. A simulator config written before `stretch_iterations` existed
     /// ran one stretch sweep per substep, so a manifest without the field reads as 1, not
     /// as today's default. One written before session 15 had no paced morph and no check
@@ -381,6 +404,46 @@ mod tests {
         assert!(!m.garment_crease_contacts);
         // Nor the doubled sweeps of a stalled drape.
         assert_eq!(back.sim.stall_frames, 0);
+    }
+
+    #[test]
+    fn the_drapes_identity_ignores_the_build_and_the_times_but_not_the_shards() {
+        let config = DatasetConfig::from_toml(
+            "name = \"t\"\ngarment = \"tshirt\"\nresolution = 3000\nseed = 1\nposes_per_body = 1\n\
+             [bodies]\ntrain = 1\nval = 1\ntest = 1\n",
+            std::path::Path::new("t.toml"),
+        )
+        .unwrap();
+        let shard = ShardRecord {
+            file: "train-00000.safetensors".into(),
+            split: Split::Train,
+            rows: 1,
+            bytes: 100,
+            sha256: "a".repeat(64),
+            samples: Vec::new(),
+        };
+        let m = Manifest::new(&config, GenOptions::default(), "s".repeat(64), vec![shard]);
+        let id = m.drapes_sha256();
+        assert_eq!(id.len(), 64);
+        // Made again by another build, or with other stage times: the same drapes.
+        let mut again = m.clone();
+        again.git_revision = "another".into();
+        again.program_sha256 = Some("b".repeat(64));
+        again.shards[0].bytes = 101;
+        assert_eq!(again.drapes_sha256(), id);
+        // Another shard, static file, config or split: other drapes.
+        let changes: [fn(&mut Manifest); 5] = [
+            |m| m.shards[0].sha256 = "c".repeat(64),
+            |m| m.static_sha256 = "d".repeat(64),
+            |m| m.config_sha256 = "e".repeat(64),
+            |m| m.shards[0].split = Split::Val,
+            |m| m.shards[0].rows = 2,
+        ];
+        for change in changes {
+            let mut other = m.clone();
+            change(&mut other);
+            assert_ne!(other.drapes_sha256(), id);
+        }
     }
 
     #[test]

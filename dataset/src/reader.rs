@@ -46,6 +46,10 @@ impl Dataset {
                 " (a dataset generated with --shard needs `drape data merge` first)"
             } else if dir.join("config.json").is_file() {
                 " (its generation has not finished: the same `drape gen` command resumes it)"
+            } else if !dir.exists() {
+                " (there is no such folder: give a dataset folder, one `drape gen` wrote)"
+            } else if dir.join("config.toml").is_file() && dir.join("run.json").is_file() {
+                " (that is a training run's folder, not a dataset's)"
             } else {
                 ""
             };

@@ -137,6 +137,7 @@ impl Predictor {
                 resolution: 0,
                 dataset: String::new(),
                 manifest_sha256: String::new(),
+                drapes_sha256: None,
                 init: None,
                 curvature_scales: None,
                 faces_sha256: None,

@@ -153,14 +153,31 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
             )))
         }
         Some(old) if old.manifest_sha256 != info.manifest_sha256 => {
-            Err(LearnError::Mismatch(format!(
-                "{} was trained on dataset {} with manifest sha256 {}..., not on this data ({}, manifest {}...): resume it with the data it started on, or use another -o folder",
-                run.display(),
-                old.dataset,
-                dataset::manifest::short_hex(&old.manifest_sha256),
-                info.dataset,
-                dataset::manifest::short_hex(&info.manifest_sha256),
-            )))
+            // Another manifest: the same drapes made again serve (their identity matches).
+            match (&old.drapes_sha256, &info.drapes_sha256) {
+                (Some(a), Some(b)) if a == b => {
+                    println!(
+                        "resuming on the same drapes made again (drapes sha256 {}...; manifest {}... where the run started on {}...)",
+                        dataset::manifest::short_hex(a),
+                        dataset::manifest::short_hex(&info.manifest_sha256),
+                        dataset::manifest::short_hex(&old.manifest_sha256),
+                    );
+                    Ok(())
+                }
+                (old_drapes, _) => Err(LearnError::Mismatch(format!(
+                    "{} was trained on dataset {} with manifest sha256 {}..., not on this data ({}, manifest {}...){}: resume it with the data it started on, or use another -o folder",
+                    run.display(),
+                    old.dataset,
+                    dataset::manifest::short_hex(&old.manifest_sha256),
+                    info.dataset,
+                    dataset::manifest::short_hex(&info.manifest_sha256),
+                    match old_drapes {
+                        Some(_) => ", and these are other drapes",
+                        None =>
+                            " (the run predates drapes sha256, so data made again cannot be matched to it)",
+                    },
+                ))),
+            }
         }
         Some(_) => Ok(()),
         None => write_files(&[(&ip, &json(info))]),

@@ -442,6 +442,10 @@ pub struct RunInfo {
     pub dataset: String,
     /// sha256 of the dataset's manifest file.
     pub manifest_sha256: String,
+    /// The dataset's [`dataset::manifest::Manifest::drapes_sha256`]: its drapes' identity,
+    /// the same for the same drapes made again. Absent in runs made before session 71.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drapes_sha256: Option<String>,
     /// Run this one was initialised from (fine-tuning).
     pub init: Option<PathBuf>,
     /// Curvature weight factors measured at the start of the run (`loss.rescale_curvature`).
@@ -619,6 +623,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         resolution: data.manifest.config["resolution"].as_u64().unwrap_or(0) as usize,
         dataset: data.manifest.name.clone(),
         manifest_sha256: crate::run::manifest_sha256(&opts.data)?,
+        drapes_sha256: Some(data.manifest.drapes_sha256()),
         init: opts.init.clone(),
         curvature_scales: None,
         faces_sha256: Some(crate::run::faces_sha256(&data.statics.garment_triangles)),

@@ -57,7 +57,7 @@ enum BenchCommand {
         variant: Option<String>,
         /// Gradient workers per step, as `drape train --workers` (default: one per
         /// thread of RAYON_NUM_THREADS, at most the batch size).
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, default_value_t = 0, hide_default_value = true)]
         workers: usize,
     },
     /// Inference time of GarNet networks: per drape, the DQS warp, the inputs (normals,
@@ -90,7 +90,7 @@ enum BenchCommand {
         repeats: usize,
         /// Threads a batch's drapes are shared among, one drape per pass (default: one
         /// per thread of RAYON_NUM_THREADS; 1: the whole batch in one pass).
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, default_value_t = 0, hide_default_value = true)]
         workers: usize,
     },
     /// The speed-up of a trained network over the simulator on the same test samples, in
@@ -118,7 +118,7 @@ enum BenchCommand {
         json: Option<std::path::PathBuf>,
         /// Threads the batched measurement's drapes are shared among, one drape per pass
         /// (default: one per thread of RAYON_NUM_THREADS; 1: the whole batch in one pass).
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, default_value_t = 0, hide_default_value = true)]
         workers: usize,
     },
 }

@@ -595,14 +595,15 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
             }
             let m = &ds.manifest;
             println!(
-                "{} ({}, {} vertices): program {} at {} (build sha256 {}), config sha256 {}",
+                "{} ({}, {} vertices): program {} at {} (build sha256 {}), config sha256 {}, drapes sha256 {}",
                 i.name,
                 i.garment,
                 i.vertices,
                 m.program_version,
                 dataset::manifest::short_revision(&m.git_revision),
                 dataset::manifest::short_sha(&m.program_sha256),
-                &m.config_sha256[..12]
+                &m.config_sha256[..12],
+                &m.drapes_sha256()[..12]
             );
             for s in Split::ALL {
                 let t = i.failures_by_split.get(&s).copied().unwrap_or_default();

@@ -52,7 +52,7 @@ pub struct TrainArgs {
     /// backward passes run side by side, one thread each, and their gradients are summed
     /// (the same gradient up to rounding). Default: one per thread of RAYON_NUM_THREADS
     /// (all cores), at most the batch size; 1 runs the whole batch at once.
-    #[arg(long, value_name = "N", default_value_t = 0)]
+    #[arg(long, value_name = "N", default_value_t = 0, hide_default_value = true)]
     workers: usize,
 }
 

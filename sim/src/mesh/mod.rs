@@ -81,6 +81,8 @@ impl TriMesh {
             ignore_lines: true,
             ..Default::default()
         };
+        // tobj says only "open file failed": name the system's reason.
+        std::fs::File::open(path).map_err(|e| err(e.to_string()))?;
         let (models, _) = tobj::load_obj(path, &opts).map_err(|e| err(e.to_string()))?;
         let mut mesh = TriMesh::default();
         for m in &models {
