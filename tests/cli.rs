@@ -1078,6 +1078,22 @@ fn compare_pairs_two_evaluations_by_sample() {
     std::fs::write(&b, with_provenance("77d54b0123456789", "test")).unwrap();
     let o = drape(&["compare", a_s, bs]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // Evaluations that record their drapes' identity pair across manifests when it
+    // matches (the same drapes made again), and not when it differs.
+    let with_drapes = |manifest: &str, drapes: &str| {
+        with_provenance(manifest, "test").replacen(
+            "\"split\"",
+            &format!("\"drapes_sha256\": \"{drapes}\", \"split\""),
+            1,
+        )
+    };
+    std::fs::write(&a, with_drapes("77d54b0123456789", "d1d1d1d1d1d1d1d1")).unwrap();
+    std::fs::write(&b, with_drapes("4a29f60123456789", "d1d1d1d1d1d1d1d1")).unwrap();
+    let o = drape(&["compare", a_s, bs]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(&b, with_drapes("4a29f60123456789", "e2e2e2e2e2e2e2e2")).unwrap();
+    err(&["compare", a_s, bs], "these are different drapes");
+    std::fs::write(&a, with_provenance("77d54b0123456789", "test")).unwrap();
 
     // A reproduction record that lists a manifest as the same drapes made again pairs the
     // two; a manifest it does not list stays other drapes.

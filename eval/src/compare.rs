@@ -62,17 +62,32 @@ fn read_metrics(path: &Path) -> Result<(PathBuf, serde_json::Value), EvalError> 
 }
 
 /// The drapes an evaluation was made on, from the provenance `drape eval` writes into its
-/// `metrics.json`: the dataset manifest's sha256, the split, and the data folder it named.
-/// `None` for a file without one (the run records in `docs/eval/`).
-fn evaluated_on(path: &Path) -> Result<Option<(String, String, Option<PathBuf>)>, EvalError> {
+/// `metrics.json`.
+struct EvaluatedOn {
+    /// The dataset manifest's sha256.
+    manifest: String,
+    /// The split.
+    split: String,
+    /// The data folder it named.
+    data: Option<PathBuf>,
+    /// The drapes' identity (`Manifest::drapes_sha256`; absent in evaluations made before
+    /// session 71).
+    drapes: Option<String>,
+}
+
+/// [`EvaluatedOn`] of an evaluation, `None` for a file without a provenance (the run
+/// records in `docs/eval/`).
+fn evaluated_on(path: &Path) -> Result<Option<EvaluatedOn>, EvalError> {
     let (_, v) = read_metrics(path)?;
     let p = &v["provenance"];
     Ok(p["manifest_sha256"]
         .as_str()
         .zip(p["split"].as_str())
-        .map(|(m, s)| {
-            let data = p["data"].as_str().map(PathBuf::from);
-            (m.to_string(), s.to_string(), data)
+        .map(|(m, s)| EvaluatedOn {
+            manifest: m.to_string(),
+            split: s.to_string(),
+            data: p["data"].as_str().map(PathBuf::from),
+            drapes: p["drapes_sha256"].as_str().map(str::to_string),
         }))
 }
 
@@ -157,10 +172,16 @@ impl SameDrapes {
 /// another split. Sample ids repeat across datasets and splits, so matching ids alone do
 /// not make the drapes the same. Evaluations without a provenance pass.
 pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), EvalError> {
-    let (Some((ma, sa, da)), Some((mb, sb, db))) = (evaluated_on(a)?, evaluated_on(b)?) else {
+    let (Some(ea), Some(eb)) = (evaluated_on(a)?, evaluated_on(b)?) else {
         return Ok(());
     };
+    let (ma, sa, da) = (ea.manifest, ea.split, ea.data);
+    let (mb, sb, db) = (eb.manifest, eb.split, eb.data);
     if sa == sb && ma == mb {
+        return Ok(());
+    }
+    // The same drapes made again: their identities match where the manifests differ.
+    if sa == sb && ea.drapes.is_some() && ea.drapes == eb.drapes {
         return Ok(());
     }
     let (ra, why_a) = same.recorded_as(&ma, da.as_deref())?;
@@ -169,7 +190,7 @@ pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), Ev
         return Ok(());
     }
     let hint = if same.recorded.is_empty() {
-        " (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program and config it records)".to_string()
+        " (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: evaluations that record their drapes sha256 (made since session 71) pair on it; for older ones `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program and config it records)".to_string()
     } else {
         let whys: Vec<String> = [why_a, why_b].into_iter().flatten().collect();
         if whys.is_empty() {

@@ -120,6 +120,9 @@ pub struct Provenance {
     pub dataset: String,
     /// sha256 of `manifest.json`.
     pub manifest_sha256: String,
+    /// The drapes' identity (`Manifest::drapes_sha256`): the same for the same drapes made
+    /// again, whose manifests differ.
+    pub drapes_sha256: String,
     /// The split evaluated.
     pub split: String,
     /// Git revision of the program.
@@ -212,6 +215,7 @@ pub fn write_report(
         data: data.dir.clone(),
         dataset: data.manifest.name.clone(),
         manifest_sha256: learn::run::manifest_sha256(&data.dir)?,
+        drapes_sha256: data.manifest.drapes_sha256(),
         split: split.name().into(),
         git_revision: dataset::manifest::GIT_REVISION.into(),
         program_version: env!("CARGO_PKG_VERSION").into(),
