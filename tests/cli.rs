@@ -1093,6 +1093,19 @@ fn compare_pairs_two_evaluations_by_sample() {
     assert!(o.status.success(), "{}", stderr(&o));
     std::fs::write(&b, with_drapes("4a29f60123456789", "e2e2e2e2e2e2e2e2")).unwrap();
     err(&["compare", a_s, bs], "these are different drapes");
+    // The same drapes in another split are other samples.
+    std::fs::write(
+        &b,
+        with_drapes("4a29f60123456789", "d1d1d1d1d1d1d1d1").replace("\"test\"", "\"val\""),
+    )
+    .unwrap();
+    err(
+        &["compare", a_s, bs],
+        "on the val split of drapes d1d1d1d1d1d1",
+    );
+    // One evaluation without the identity, on another manifest: not known to be the same.
+    std::fs::write(&b, with_provenance("4a29f60123456789", "test")).unwrap();
+    err(&["compare", a_s, bs], "these are different drapes");
     std::fs::write(&a, with_provenance("77d54b0123456789", "test")).unwrap();
 
     // A reproduction record that lists a manifest as the same drapes made again pairs the
@@ -1111,6 +1124,14 @@ fn compare_pairs_two_evaluations_by_sample() {
     std::fs::write(&b, with_provenance("4a29f60123456789", "test")).unwrap();
     let o = drape(&["compare", a_s, bs, "--record", r_s]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // Identities that differ are other drapes, whatever the record lists.
+    std::fs::write(&a, with_drapes("77d54b0123456789", "d1d1d1d1d1d1d1d1")).unwrap();
+    std::fs::write(&b, with_drapes("4a29f60123456789", "e2e2e2e2e2e2e2e2")).unwrap();
+    err(
+        &["compare", a_s, bs, "--record", r_s],
+        "these are different drapes",
+    );
+    std::fs::write(&a, with_provenance("77d54b0123456789", "test")).unwrap();
     std::fs::write(&b, with_provenance("4a29f60123456789", "val")).unwrap();
     err(
         &["compare", a_s, bs, "--record", r_s],

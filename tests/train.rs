@@ -153,6 +153,23 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     .unwrap();
     let (ok, text) = train(&lr, &data, &run_dir, &[]);
     assert!(!ok && text.contains("another config"), "{text}");
+    // A run made before the drapes' identity (its run.json without it) records it when it
+    // resumes on its own data.
+    let info_path = run_dir.join("run.json");
+    let mut info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&info_path).unwrap()).unwrap();
+    let drapes = info["drapes_sha256"]
+        .as_str()
+        .expect("drapes_sha256")
+        .to_string();
+    assert_eq!(drapes.len(), 64);
+    info.as_object_mut().unwrap().remove("drapes_sha256");
+    std::fs::write(&info_path, info.to_string()).unwrap();
+    let (ok, text) = train(&cfg, &data, &run_dir, &[]);
+    assert!(ok, "{text}");
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&info_path).unwrap()).unwrap();
+    assert_eq!(info["drapes_sha256"].as_str(), Some(drapes.as_str()));
     // The same drapes made again (another manifest: its drapes' stage times differ) serve
     // to resume, as a long run needs on a fresh machine: the finished run stays as it is.
     let again = tmp.path().join("data-again");

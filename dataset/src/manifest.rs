@@ -414,13 +414,25 @@ mod tests {
             std::path::Path::new("t.toml"),
         )
         .unwrap();
+        let sample = SampleRecord {
+            plan: crate::plan::sample_plan(&config, 0),
+            family: "walking".into(),
+            pose_source: "walking".into(),
+            shape: [0.5; 9],
+            size: None,
+            ok: true,
+            failure: None,
+            report: serde_json::json!({"stage_times": {"solve": 0.5}, "settle_frames": 90}),
+            warp_seconds: 0.001,
+            seconds: 1.0,
+        };
         let shard = ShardRecord {
             file: "train-00000.safetensors".into(),
             split: Split::Train,
             rows: 1,
             bytes: 100,
             sha256: "a".repeat(64),
-            samples: Vec::new(),
+            samples: vec![sample],
         };
         let m = Manifest::new(&config, GenOptions::default(), "s".repeat(64), vec![shard]);
         let id = m.drapes_sha256();
@@ -429,7 +441,10 @@ mod tests {
         let mut again = m.clone();
         again.git_revision = "another".into();
         again.program_sha256 = Some("b".repeat(64));
-        again.shards[0].bytes = 101;
+        again.shards[0].samples[0].seconds = 1.2;
+        again.shards[0].samples[0].warp_seconds = 0.002;
+        again.shards[0].samples[0].report["stage_times"]["solve"] = serde_json::json!(0.6);
+        assert_ne!(again, m);
         assert_eq!(again.drapes_sha256(), id);
         // Another shard, static file, config or split: other drapes.
         let changes: [fn(&mut Manifest); 5] = [

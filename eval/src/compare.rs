@@ -181,8 +181,20 @@ pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), Ev
         return Ok(());
     }
     // The same drapes made again: their identities match where the manifests differ.
-    if sa == sb && ea.drapes.is_some() && ea.drapes == eb.drapes {
-        return Ok(());
+    // Where both record one and they differ, the drapes differ, whatever a record says.
+    if let (Some(da_id), Some(db_id)) = (&ea.drapes, &eb.drapes) {
+        if sa == sb && da_id == db_id {
+            return Ok(());
+        }
+        return Err(EvalError::Invalid(format!(
+            "{} was evaluated on the {sa} split of drapes {}... (dataset manifest {}...), {} on the {sb} split of drapes {}... (manifest {}...): these are different drapes; compare evaluations of the same split of the same drapes",
+            a.display(),
+            dataset::manifest::short_hex(da_id),
+            dataset::manifest::short_hex(&ma),
+            b.display(),
+            dataset::manifest::short_hex(db_id),
+            dataset::manifest::short_hex(&mb),
+        )));
     }
     let (ra, why_a) = same.recorded_as(&ma, da.as_deref())?;
     let (rb, why_b) = same.recorded_as(&mb, db.as_deref())?;
@@ -190,7 +202,7 @@ pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), Ev
         return Ok(());
     }
     let hint = if same.recorded.is_empty() {
-        " (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: evaluations that record their drapes sha256 (made since session 71) pair on it; for older ones `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program and config it records)".to_string()
+        " (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: an evaluation made since session 71 records its drapes sha256, and two such pair on it; where one of them is older, `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program and config it records)".to_string()
     } else {
         let whys: Vec<String> = [why_a, why_b].into_iter().flatten().collect();
         if whys.is_empty() {

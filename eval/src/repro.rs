@@ -681,13 +681,25 @@ impl Results {
     }
 
     /// The drapes run `key` was evaluated on: its dataset's manifest sha256 (the present
-    /// one for a manifest of the same drapes made again) and split (None for an
-    /// evaluation without a provenance).
-    fn drapes(&self, key: &str) -> Option<(&str, &str)> {
+    /// one for a manifest of the same drapes made again), split, and drapes sha256 where
+    /// the evaluation records it (None for an evaluation without a provenance).
+    fn drapes(&self, key: &str) -> Option<(&str, &str, Option<&str>)> {
         let p = &self.evals.get(key)?["provenance"];
         let m = p["manifest_sha256"].as_str()?;
         let m = self.same_drapes.get(m).map_or(m, String::as_str);
-        Some((m, p["split"].as_str()?))
+        Some((m, p["split"].as_str()?, p["drapes_sha256"].as_str()))
+    }
+
+    /// Whether runs `a` and `b` were evaluated on the same drapes: the same split, and the
+    /// same manifest or, where both record it, the same drapes sha256 (data made again).
+    fn same_drapes(&self, a: &str, b: &str) -> bool {
+        match (self.drapes(a), self.drapes(b)) {
+            (Some((ma, sa, da)), Some((mb, sb, db))) => {
+                sa == sb && (ma == mb || (da.is_some() && da == db))
+            }
+            (None, None) => true,
+            _ => false,
+        }
     }
 
     /// Run `key` and those of its seed replicates evaluated on the same drapes (dataset
@@ -699,7 +711,7 @@ impl Results {
                     .get(key)
                     .into_iter()
                     .flatten()
-                    .filter(|k| self.evals.contains_key(*k) && self.drapes(k) == self.drapes(key))
+                    .filter(|k| self.evals.contains_key(*k) && self.same_drapes(k, key))
                     .cloned(),
             )
             .collect()
@@ -765,8 +777,8 @@ impl Results {
     /// drapes (another dataset manifest or split).
     pub fn paired_edist_groups(&self, a: &[String], b: &[String]) -> Option<(f64, f64, usize)> {
         // Runs evaluated on other drapes (another dataset or split) do not pair.
-        let drapes = self.drapes(a.first()?);
-        if a.iter().chain(b).any(|k| self.drapes(k) != drapes) {
+        let first = a.first()?;
+        if a.iter().chain(b).any(|k| !self.same_drapes(k, first)) {
             return None;
         }
         let rows = |g: &[String]| -> Option<Vec<BTreeMap<i64, f64>>> {

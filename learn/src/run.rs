@@ -179,6 +179,15 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 ))),
             }
         }
+        // A run made before the drapes' identity: recorded now that its data is verified
+        // by the manifest, so that it can resume on the same drapes made again later.
+        Some(old) if old.drapes_sha256.is_none() && info.drapes_sha256.is_some() => {
+            let upgraded = RunInfo {
+                drapes_sha256: info.drapes_sha256.clone(),
+                ..old
+            };
+            write_files(&[(&ip, &json(&upgraded))])
+        }
         Some(_) => Ok(()),
         None => write_files(&[(&ip, &json(info))]),
     }

@@ -69,8 +69,9 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     // committed weights' data is not shipped).
     let trained_on = dataset::reader::Dataset::open(&config.data)
         .ok()
-        .filter(|_| {
+        .filter(|d| {
             learn::run::manifest_sha256(&config.data).is_ok_and(|m| m == info.manifest_sha256)
+                || info.drapes_sha256.as_ref() == Some(&d.manifest.drapes_sha256())
         });
     let dc = match trained_on {
         Some(d) => d.manifest.dataset_config()?,
