@@ -322,7 +322,9 @@ samples = 1
 
     // The recorded drapes made again by the same binary from the same config: another
     // manifest (it records timings), the same drapes. `drape compare` pairs an evaluation on
-    // them with the recorded one only given the record, which names the program and config.
+    // them with the recorded one on their drapes sha256; an evaluation made before that
+    // was recorded (session 71) pairs only given the record, which names the program and
+    // config.
     let again = dir.join("again");
     let (ok, text) = run(drape().arg("gen").arg("tiny").arg("-o").arg(&again));
     assert!(ok, "{text}");
@@ -339,6 +341,18 @@ samples = 1
         .arg(&eval_again));
     assert!(ok, "{text}");
     let recorded_eval = record.join("eval/tshirt-local/metrics.json");
+    let (ok, text) = run(drape().arg("compare").arg(&eval_again).arg(&recorded_eval));
+    assert!(ok, "{text}");
+    // The recorded evaluation as one made before session 71: no drapes sha256.
+    let mut old: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&recorded_eval).unwrap()).unwrap();
+    assert!(old["provenance"]["drapes_sha256"].is_string());
+    old["provenance"]
+        .as_object_mut()
+        .unwrap()
+        .remove("drapes_sha256");
+    let recorded_eval = dir.join("recorded-eval-before-71.json");
+    std::fs::write(&recorded_eval, old.to_string()).unwrap();
     let compare = |with_record: bool| {
         let mut c = drape();
         c.arg("compare").arg(&eval_again).arg(&recorded_eval);
