@@ -280,8 +280,11 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     let t0 = Instant::now();
     let st = &data.statics;
     let net = Predictor::open(run, st)?;
-    let same_drapes = net.info.drapes_sha256.as_ref() == Some(&data.manifest.drapes_sha256());
-    if !same_drapes && net.info.manifest_sha256 != learn::run::manifest_sha256(&data.dir)? {
+    let manifest = learn::run::manifest_sha256(&data.dir)?;
+    if !net
+        .info
+        .trained_on(&manifest, &data.manifest.drapes_sha256())
+    {
         eprintln!(
             "note: {} was trained on dataset {:?}; evaluating on {} ({})",
             run.display(),

@@ -457,6 +457,14 @@ pub struct RunInfo {
     pub faces_sha256: Option<String>,
 }
 
+impl RunInfo {
+    /// Whether the run was trained on the dataset with manifest sha256 `manifest` and
+    /// drapes sha256 `drapes`: the same manifest, or the same drapes made again.
+    pub fn trained_on(&self, manifest: &str, drapes: &str) -> bool {
+        self.manifest_sha256 == manifest || self.drapes_sha256.as_deref() == Some(drapes)
+    }
+}
+
 pub(crate) fn ck(path: &Path) -> impl Fn(burn::store::RecordError) -> LearnError + '_ {
     move |e| LearnError::Checkpoint {
         path: path.to_path_buf(),

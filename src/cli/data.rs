@@ -603,7 +603,7 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 dataset::manifest::short_revision(&m.git_revision),
                 dataset::manifest::short_sha(&m.program_sha256),
                 &m.config_sha256[..12],
-                &m.drapes_sha256()[..12]
+                &i.drapes_sha256[..12]
             );
             for s in Split::ALL {
                 let t = i.failures_by_split.get(&s).copied().unwrap_or_default();

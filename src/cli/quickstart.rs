@@ -70,8 +70,8 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
     let trained_on = dataset::reader::Dataset::open(&config.data)
         .ok()
         .filter(|d| {
-            learn::run::manifest_sha256(&config.data).is_ok_and(|m| m == info.manifest_sha256)
-                || info.drapes_sha256.as_ref() == Some(&d.manifest.drapes_sha256())
+            learn::run::manifest_sha256(&config.data)
+                .is_ok_and(|m| info.trained_on(&m, &d.manifest.drapes_sha256()))
         });
     let dc = match trained_on {
         Some(d) => d.manifest.dataset_config()?,
