@@ -1142,6 +1142,25 @@ fn compare_pairs_two_evaluations_by_sample() {
         &["compare", a_s, bs, "--record", r_s],
         "on the test split of 9e1f00012345...: these are different drapes",
     );
+    // A record that names its drapes' sha256 pairs an evaluation that records the same
+    // (the drapes made again by another build, under a manifest it does not list) with
+    // one on its manifest that records none; another sha256 stays other drapes.
+    std::fs::write(
+        record.join("data/tshirt.json"),
+        r#"{"config": "tiny", "manifest_sha256": "77d54b0123456789", "config_sha256": "c",
+            "program_sha256": "p", "program_version": "0.1.0", "git_revision": "g",
+            "converged": [3, 0, 3], "failed": 0, "stepping": "s",
+            "drapes_sha256": "d1d1d1d1d1d1d1d1"}"#,
+    )
+    .unwrap();
+    std::fs::write(&b, with_drapes("9e1f000123456789", "d1d1d1d1d1d1d1d1")).unwrap();
+    let o = drape(&["compare", a_s, bs, "--record", r_s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(&b, with_drapes("9e1f000123456789", "e2e2e2e2e2e2e2e2")).unwrap();
+    err(
+        &["compare", a_s, bs, "--record", r_s],
+        "these are different drapes",
+    );
     std::fs::rename(
         record.join("data/tshirt.json"),
         record.join("data/tshirt.txt"),

@@ -323,8 +323,8 @@ samples = 1
     // The recorded drapes made again by the same binary from the same config: another
     // manifest (it records timings), the same drapes. `drape compare` pairs an evaluation on
     // them with the recorded one on their drapes sha256; an evaluation made before that
-    // was recorded (session 71) pairs only given the record, which names the program and
-    // config.
+    // was recorded (session 71) pairs only given the record, which names the drapes
+    // sha256 (since session 72; before, the program and config, with the data folder).
     let again = dir.join("again");
     let (ok, text) = run(drape().arg("gen").arg("tiny").arg("-o").arg(&again));
     assert!(ok, "{text}");
@@ -353,17 +353,36 @@ samples = 1
         .remove("drapes_sha256");
     let recorded_eval = dir.join("recorded-eval-before-71.json");
     std::fs::write(&recorded_eval, old.to_string()).unwrap();
-    let compare = |with_record: bool| {
+    // The record as one written before session 72: its summaries name no drapes
+    // sha256, so only the data folder an evaluation names can tie it to them.
+    let record_before_72 = dir.join("record-before-72");
+    std::fs::create_dir_all(record_before_72.join("data")).unwrap();
+    for entry in std::fs::read_dir(record.join("data")).unwrap() {
+        let path = entry.unwrap().path();
+        let mut s: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        assert!(s["drapes_sha256"].is_string(), "{s}");
+        s.as_object_mut().unwrap().remove("drapes_sha256");
+        let to = record_before_72
+            .join("data")
+            .join(path.file_name().unwrap());
+        std::fs::write(to, s.to_string()).unwrap();
+    }
+    let compare_with = |record: Option<&Path>| {
         let mut c = drape();
         c.arg("compare").arg(&eval_again).arg(&recorded_eval);
-        if with_record {
-            c.arg("--record").arg(&record);
+        if let Some(r) = record {
+            c.arg("--record").arg(r);
         }
         run(&mut c)
     };
+    let compare = |with_record: bool| compare_with(with_record.then_some(&record_before_72));
     let (ok, text) = compare(false);
     assert!(!ok && text.contains("these are different drapes"), "{text}");
     let (ok, text) = compare(true);
+    assert!(ok, "{text}");
+    // The record as written now names the drapes sha256 the new evaluation records.
+    let (ok, text) = compare_with(Some(&record));
     assert!(ok, "{text}");
     // The same network on the same drapes: no difference beyond the record's rounding.
     let edist = text
@@ -381,6 +400,9 @@ samples = 1
         !ok && text.contains("is no longer the manifest evaluated"),
         "{text}"
     );
+    // (A record that names the drapes sha256 needs no data folder.)
+    let (ok, text) = compare_with(Some(&record));
+    assert!(ok, "{text}");
     std::fs::write(&again_manifest, &kept).unwrap();
     // ...made from the recorded config: the same manifest with another config's sha256,
     // evaluated (its provenance) on a folder of its own, is other drapes.
@@ -404,7 +426,7 @@ samples = 1
         .arg(&other_eval)
         .arg(&recorded_eval)
         .arg("--record")
-        .arg(&record));
+        .arg(&record_before_72));
     assert!(
         !ok && text.contains("records no program and config the record does"),
         "{text}"

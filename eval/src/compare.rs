@@ -122,7 +122,8 @@ impl SameDrapes {
     }
 
     /// The recorded datasets whose drapes an evaluation on manifest `m` holds (their
-    /// recorded manifests): those that list `m` (as theirs or under `same_drapes`), and, if
+    /// recorded manifests): those that list `m` (as theirs or under `same_drapes`), those
+    /// that record the evaluation's drapes sha256 `drapes` as theirs, and, if
     /// the data folder `data` the evaluation named still holds manifest `m`, those whose
     /// config and program its manifest records (a working folder made again after the
     /// record was written: [`DataSummary::same_drapes_as`]). Beside them, why
@@ -130,12 +131,17 @@ impl SameDrapes {
     fn recorded_as(
         &self,
         m: &str,
+        drapes: Option<&str>,
         data: Option<&Path>,
     ) -> Result<(BTreeSet<String>, Option<String>), EvalError> {
         let mut out: BTreeSet<String> = self
             .recorded
             .iter()
-            .filter(|r| r.manifest_sha256 == m || r.same_drapes.iter().any(|s| s == m))
+            .filter(|r| {
+                r.manifest_sha256 == m
+                    || r.same_drapes.iter().any(|s| s == m)
+                    || (drapes.is_some() && r.drapes_sha256.as_deref() == drapes)
+            })
             .map(|r| r.manifest_sha256.clone())
             .collect();
         let Some(data) = data.filter(|_| !self.recorded.is_empty()) else {
@@ -196,8 +202,8 @@ pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), Ev
             dataset::manifest::short_hex(&mb),
         )));
     }
-    let (ra, why_a) = same.recorded_as(&ma, da.as_deref())?;
-    let (rb, why_b) = same.recorded_as(&mb, db.as_deref())?;
+    let (ra, why_a) = same.recorded_as(&ma, ea.drapes.as_deref(), da.as_deref())?;
+    let (rb, why_b) = same.recorded_as(&mb, eb.drapes.as_deref(), db.as_deref())?;
     if sa == sb && !ra.is_disjoint(&rb) {
         return Ok(());
     }

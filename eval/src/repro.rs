@@ -643,6 +643,10 @@ pub struct Results {
     /// Manifests of the same drapes made again ([`record::DataSummary::same_drapes`]):
     /// each earlier manifest's sha256 to the dataset's present one.
     pub same_drapes: BTreeMap<String, String>,
+    /// Each recorded dataset's drapes sha256 ([`record::DataSummary::drapes_sha256`]) to
+    /// its present manifest's sha256: an evaluation that records those drapes was made on
+    /// that dataset, whichever build made the data it read.
+    pub drapes_to_manifest: BTreeMap<String, String>,
 }
 
 impl Results {
@@ -675,19 +679,27 @@ impl Results {
                 for m in s.same_drapes {
                     r.same_drapes.insert(m, s.manifest_sha256.clone());
                 }
+                if let Some(d) = s.drapes_sha256 {
+                    r.drapes_to_manifest.insert(d, s.manifest_sha256.clone());
+                }
             }
         }
         r
     }
 
     /// The drapes run `key` was evaluated on: its dataset's manifest sha256 (the present
-    /// one for a manifest of the same drapes made again), split, and drapes sha256 where
-    /// the evaluation records it (None for an evaluation without a provenance).
+    /// one for a manifest of the same drapes made again, or for drapes whose sha256 the
+    /// record names), split, and drapes sha256 where the evaluation records it (None for
+    /// an evaluation without a provenance).
     fn drapes(&self, key: &str) -> Option<(&str, &str, Option<&str>)> {
         let p = &self.evals.get(key)?["provenance"];
+        let d = p["drapes_sha256"].as_str();
         let m = p["manifest_sha256"].as_str()?;
-        let m = self.same_drapes.get(m).map_or(m, String::as_str);
-        Some((m, p["split"].as_str()?, p["drapes_sha256"].as_str()))
+        let m = match d.and_then(|d| self.drapes_to_manifest.get(d)) {
+            Some(present) => present.as_str(),
+            None => self.same_drapes.get(m).map_or(m, String::as_str),
+        };
+        Some((m, p["split"].as_str()?, d))
     }
 
     /// Whether runs `a` and `b` were evaluated on the same drapes: the same split, and the
@@ -2816,6 +2828,7 @@ samples = 1
             failed: 0,
             stepping: "10 substeps".into(),
             same_drapes: same,
+            drapes_sha256: None,
         };
         let record = |s: record::DataSummary| {
             std::fs::create_dir_all(rec.join("data")).unwrap();
@@ -2835,6 +2848,27 @@ samples = 1
         let r = Results::load(&plan, &out);
         let (mean, _, n) = r.paired_edist("tshirt-local", "tshirt-global").unwrap();
         assert!((mean - 0.0667).abs() < 1e-3 && n == 3, "{mean} {n}");
+        // Global evaluated on the drapes made a third time, by another build, under a
+        // manifest the record does not list but with the drapes sha256 it records: they
+        // pair; with another drapes sha256 they do not.
+        let on_drapes = |drapes: &str| {
+            put("tshirt-global", &[2.1, 2.2, 2.2], &"e".repeat(64));
+            let m = out.join("eval/tshirt-global/metrics.json");
+            let mut v: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(&m).unwrap()).unwrap();
+            v["provenance"]["drapes_sha256"] = drapes.into();
+            std::fs::write(&m, v.to_string()).unwrap();
+        };
+        let mut s = summary(vec![earlier.clone()]);
+        s.drapes_sha256 = Some("f".repeat(64));
+        record(s);
+        on_drapes(&"f".repeat(64));
+        let r = Results::load(&plan, &out);
+        let (mean, _, n) = r.paired_edist("tshirt-local", "tshirt-global").unwrap();
+        assert!((mean - 0.0667).abs() < 1e-3 && n == 3, "{mean} {n}");
+        on_drapes(&"9".repeat(64));
+        let r = Results::load(&plan, &out);
+        assert_eq!(r.paired_edist("tshirt-local", "tshirt-global"), None);
     }
 
     #[test]

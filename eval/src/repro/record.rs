@@ -6,7 +6,7 @@
 //! What is recorded, after every stage:
 //! - `stages.json`: the ledger of measured hours;
 //! - `data/KEY.json`: a dataset's summary ([`DataSummary`]: sample counts, build, the
-//!   manifest's sha256), never its shards;
+//!   manifest's sha256 and, since session 72, the drapes sha256), never its shards;
 //! - `runs/KEY/`: a finished run's `config.toml`, `run.json`, `state.json`, `log.csv`, and
 //!   its `best.bpk` only while a stage not yet recorded still needs it (its evaluation, a
 //!   fine-tune that starts from it, or the speed-up that times it);
@@ -53,6 +53,11 @@ pub struct DataSummary {
     /// record, so evaluations on them pair with evaluations on this one.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub same_drapes: Vec<String>,
+    /// The drapes' identity (`Manifest::drapes_sha256`: config, bodies and shard bytes,
+    /// not the timings), absent in summaries written before session 72. Data made again
+    /// by any build with this identity holds the same drapes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drapes_sha256: Option<String>,
 }
 
 impl DataSummary {
@@ -76,13 +81,13 @@ impl DataSummary {
             failed: t.values().map(|x| x.failed).sum(),
             stepping: m.dataset_config().map_or("–".into(), |c| c.sim.stepping()),
             same_drapes: Vec::new(),
+            drapes_sha256: Some(m.drapes_sha256()),
         }))
     }
 
     /// This summary of a dataset made again, given the one recorded before (`earlier`):
-    /// made by the same program (recorded in both) from the same config, it holds the same
-    /// drapes, and the earlier manifests are kept in `same_drapes` (the same summary saved
-    /// again keeps them too).
+    /// if it holds the same drapes ([`Self::same_drapes_as`]), the earlier manifests are
+    /// kept in `same_drapes` (the same summary saved again keeps them too).
     pub fn after(mut self, earlier: Option<Self>) -> Self {
         if let Some(e) = earlier
             && self.same_drapes_as(&e)
@@ -96,9 +101,14 @@ impl DataSummary {
         self
     }
 
-    /// Whether this dataset holds the same drapes as `other`: made from the same config
-    /// by the same program, recorded in both (one binary drapes the same bytes).
+    /// Whether this dataset holds the same drapes as `other`: where both record the
+    /// drapes' identity, whether it is the same (whichever builds made them); otherwise,
+    /// whether they were made from the same config by the same program, recorded in both
+    /// (one binary drapes the same bytes).
     pub fn same_drapes_as(&self, other: &Self) -> bool {
+        if let (Some(a), Some(b)) = (&self.drapes_sha256, &other.drapes_sha256) {
+            return a == b;
+        }
         self.config_sha256 == other.config_sha256
             && self.program_sha256.is_some()
             && self.program_sha256 == other.program_sha256
@@ -459,9 +469,12 @@ pub fn remake_differs(plan: &Plan, out: &Path, key: &str, program: Option<&str>)
                 .ok()
                 .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
                 .is_some_and(|v| {
-                    v["provenance"]["manifest_sha256"]
+                    let p = &v["provenance"];
+                    p["manifest_sha256"]
                         .as_str()
                         .is_some_and(|m| drapes.contains(&m))
+                        || (s.drapes_sha256.is_some()
+                            && p["drapes_sha256"].as_str() == s.drapes_sha256.as_deref())
                 })
         })
         .map(|r| r.key.as_str())
@@ -477,8 +490,16 @@ pub fn remake_differs(plan: &Plan, out: &Path, key: &str, program: Option<&str>)
         .and_then(|d| d.max_failure_rate)
         .map_or(String::new(), |r| format!(" --max-failure-rate {r}"));
     let to = std::path::absolute(&dir).unwrap_or(dir);
+    // Builds that drape the same bytes make the same drapes; the record says which they
+    // are if it names their identity.
+    let same = s.drapes_sha256.as_deref().map_or(String::new(), |d| {
+        format!(
+            " (if it drapes the same bytes, its drapes sha256, which `drape data info` prints, is the recorded {}, and runs on them pair with the recorded ones)",
+            short(d)
+        )
+    });
     Some(format!(
-        "dataset {key} is to be made again, but the record's summary of it ({}) says another build of drape draped it (program sha256 {}, git {}; this one {}), and the evaluations of {} were made on those drapes (manifest sha256 {}): two builds drape differently by up to 15 mm, so runs on new drapes would not pair with them. To make the same drapes, check out git {} and build it with `cargo build --release` at the path and with the Rust toolchain that built it (neither is recorded; with both the same, the build is the same binary: check that its sha256 is {}), run its `drape gen {} -o {}{rate}`, then this command again; or pass --mixed-builds to make the dataset with this build",
+        "dataset {key} is to be made again, but the record's summary of it ({}) says another build of drape draped it (program sha256 {}, git {}; this one {}), and the evaluations of {} were made on those drapes (manifest sha256 {}): two builds drape differently by up to 15 mm, so runs on new drapes would not pair with them. To make the same drapes, check out git {} and build it with `cargo build --release` at the path and with the Rust toolchain that built it (neither is recorded; with both the same, the build is the same binary: check that its sha256 is {}), run its `drape gen {} -o {}{rate}`, then this command again; or pass --mixed-builds to make the dataset with this build{same}",
         rec.display(),
         short(made_by),
         short(&s.git_revision),
@@ -547,6 +568,7 @@ samples = 2
             failed: 0,
             stepping: "10 substeps".into(),
             same_drapes: Vec::new(),
+            drapes_sha256: None,
         }
     }
 
@@ -724,6 +746,17 @@ samples = 2
             e.contains("(manifest sha256 eeeeeeeeeeee = bbbbbbbbbbbb)"),
             "{e}"
         );
+        // A record that names the drapes' sha256: an evaluation that records it counts,
+        // under any manifest, and the message says which sha256 the same drapes have.
+        let mut named = summary("b", Some("a"), "c");
+        named.drapes_sha256 = Some("f".repeat(64));
+        write_summary(&named);
+        let m = serde_json::json!({"provenance": {"manifest_sha256": "9".repeat(64),
+            "split": "test", "drapes_sha256": "f".repeat(64)}});
+        std::fs::write(out.join("eval/base/metrics.json"), m.to_string()).unwrap();
+        let e = remake_differs(&p, &out, "shirt", Some(&other)).unwrap();
+        assert!(e.contains("is the recorded ffffffffffff"), "{e}");
+        evaluated_on(&manifest);
         write_summary(&summary("b", Some("a"), "c"));
         // Evaluated on other drapes, or a record that names no build, or the data there
         // already: nothing to keep.
@@ -821,28 +854,42 @@ samples = 2
         let (out, rec) = (root.path().join("out"), root.path().join("record"));
         let p = plan(&rec);
         let c = dataset::config::DatasetConfig::load("tiny").unwrap();
-        // A manifest by `program`; `made` stands for the timings that tell two
-        // generations of the same drapes apart.
-        let make = |program: &str, made: &str| {
-            let mut m =
-                dataset::manifest::Manifest::new(&c, Default::default(), "s".repeat(64), vec![]);
+        // A manifest by `program` with one shard whose bytes' sha256 repeats `drapes`;
+        // `made` stands for the timings that tell two generations of the same drapes
+        // apart.
+        let make = |program: &str, made: &str, drapes: &str| {
+            let shard = dataset::manifest::ShardRecord {
+                file: "train-00000.safetensors".into(),
+                split: dataset::config::Split::Train,
+                rows: 8,
+                bytes: 1000,
+                sha256: drapes.repeat(64),
+                samples: vec![],
+            };
+            let mut m = dataset::manifest::Manifest::new(
+                &c,
+                Default::default(),
+                "s".repeat(64),
+                vec![shard],
+            );
             m.program_sha256 = Some(program.repeat(64));
             m.size_templates.insert("made".into(), made.into());
             let dir = out.join("data/shirt");
             std::fs::create_dir_all(&dir).unwrap();
             let bytes = serde_json::to_vec(&m).unwrap();
             std::fs::write(dir.join("manifest.json"), &bytes).unwrap();
-            sha256(&bytes)
+            (sha256(&bytes), m.drapes_sha256())
         };
         let ledger = Ledger::default();
         let recorded = || DataSummary::recorded(&p, "shirt").unwrap();
-        let first = make("p", "first");
+        let (first, drapes) = make("p", "first", "a");
         save(&p, &out, &ledger);
         assert_eq!(recorded().manifest_sha256, first);
+        assert_eq!(recorded().drapes_sha256.as_ref(), Some(&drapes));
         assert!(recorded().same_drapes.is_empty());
         // Made again by the same program: the record links the two, and keeps the link
         // through later saves; the report finds it.
-        let second = make("p", "second");
+        let (second, _) = make("p", "second", "a");
         for _ in 0..2 {
             save(&p, &out, &ledger);
             assert_eq!(recorded().manifest_sha256, second);
@@ -850,10 +897,20 @@ samples = 2
         }
         let found = DataSummary::find(&p, &out, "shirt").unwrap();
         assert_eq!(found.same_drapes, vec![first.clone()]);
-        // Made again by another program: other drapes, no link.
-        let third = make("q", "third");
+        // Made again by another program that draped other bytes: other drapes, no link.
+        let (third, _) = make("q", "third", "b");
         save(&p, &out, &ledger);
         assert_eq!(recorded().manifest_sha256, third);
+        assert!(recorded().same_drapes.is_empty());
+        // Made again by a third program that draped the same bytes: the same drapes.
+        let (fourth, _) = make("r", "fourth", "b");
+        save(&p, &out, &ledger);
+        assert_eq!(recorded().manifest_sha256, fourth);
+        assert_eq!(recorded().same_drapes, vec![third.clone()]);
+        // Made again by that program, but with other bytes: the identity decides, not
+        // the program.
+        make("r", "fifth", "c");
+        save(&p, &out, &ledger);
         assert!(recorded().same_drapes.is_empty());
     }
 }
