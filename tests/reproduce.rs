@@ -411,26 +411,33 @@ samples = 1
     let mut m: serde_json::Value = serde_json::from_slice(&kept).unwrap();
     m["config_sha256"] = serde_json::json!("0".repeat(64));
     std::fs::write(other.join("manifest.json"), serde_json::to_vec(&m).unwrap()).unwrap();
-    let other_sha = eval::repro::record::DataSummary::read("", &other.join("manifest.json"))
-        .unwrap()
-        .unwrap()
-        .manifest_sha256;
     let mut e: serde_json::Value =
         serde_json::from_slice(&std::fs::read(eval_again.join("metrics.json")).unwrap()).unwrap();
-    e["provenance"]["manifest_sha256"] = serde_json::json!(other_sha);
+    let other_summary = eval::repro::record::DataSummary::read("", &other.join("manifest.json"))
+        .unwrap()
+        .unwrap();
+    e["provenance"]["manifest_sha256"] = serde_json::json!(other_summary.manifest_sha256);
+    e["provenance"]["drapes_sha256"] = serde_json::json!(other_summary.drapes_sha256);
     e["provenance"]["data"] = serde_json::json!(other.to_str().unwrap());
     let other_eval = dir.join("other-eval.json");
     std::fs::write(&other_eval, serde_json::to_vec(&e).unwrap()).unwrap();
-    let (ok, text) = run(drape()
-        .arg("compare")
-        .arg(&other_eval)
-        .arg(&recorded_eval)
-        .arg("--record")
-        .arg(&record_before_72));
+    let compare_other = |record: &Path| {
+        run(drape()
+            .arg("compare")
+            .arg(&other_eval)
+            .arg(&recorded_eval)
+            .arg("--record")
+            .arg(record))
+    };
+    let (ok, text) = compare_other(&record_before_72);
     assert!(
         !ok && text.contains("records no program and config the record does"),
         "{text}"
     );
+    // With the record as written now, its drapes sha256 decides, and the message names
+    // both.
+    let (ok, text) = compare_other(&record);
+    assert!(!ok && text.contains("the record names"), "{text}");
     // A folder that is no record is refused.
     let (ok, text) = run(drape()
         .arg("compare")

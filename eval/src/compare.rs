@@ -93,9 +93,11 @@ fn evaluated_on(path: &Path) -> Result<Option<EvaluatedOn>, EvalError> {
 
 /// Which dataset manifests hold the same drapes, from a `drape reproduce` record folder
 /// (`docs/reproduction-record/PLAN`): each of its `data/KEY.json` names the manifest of the
-/// drapes its runs were evaluated on and, under `same_drapes`, the manifests of the same
+/// drapes its runs were evaluated on, under `same_drapes` the manifests of the same
 /// drapes made again (one binary drapes the same bytes from one config; the manifests
-/// differ only in the timings they record). Without a record, only equal manifests match.
+/// differ only in the timings they record) and, since session 72, the drapes sha256,
+/// which any making of the same drapes has. Without a record, only equal manifests (or
+/// drapes sha256, [`check_same_drapes`]) match.
 #[derive(Debug, Default)]
 pub struct SameDrapes {
     /// The recorded datasets.
@@ -162,10 +164,25 @@ impl SameDrapes {
                     .collect();
                 out.extend(same.iter().map(|r| r.manifest_sha256.clone()));
                 same.is_empty().then(|| {
-                    format!(
-                        "{} records no program and config the record does",
-                        file.display()
-                    )
+                    // Where the record names the drapes' identity, it decided.
+                    let named: Vec<String> = self
+                        .recorded
+                        .iter()
+                        .filter_map(|r| r.drapes_sha256.as_deref())
+                        .map(|d| format!("{}...", dataset::manifest::short_hex(d)))
+                        .collect();
+                    match &live.drapes_sha256 {
+                        Some(d) if !named.is_empty() => format!(
+                            "{} holds drapes {}..., the record names {}",
+                            file.display(),
+                            dataset::manifest::short_hex(d),
+                            named.join(", ")
+                        ),
+                        _ => format!(
+                            "{} records no program and config the record does",
+                            file.display()
+                        ),
+                    }
                 })
             }
         };
@@ -208,7 +225,7 @@ pub fn check_same_drapes(a: &Path, b: &Path, same: &SameDrapes) -> Result<(), Ev
         return Ok(());
     }
     let hint = if same.recorded.is_empty() {
-        " (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: an evaluation made since session 71 records its drapes sha256, and two such pair on it; where one of them is older, `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, and on a data folder made again by the program and config it records)".to_string()
+        " (a dataset made again by the same binary from the same config has the same drapes under another manifest sha256, as its manifest records timings: an evaluation made since session 71 records its drapes sha256, and two such pair on it; where one of them is older, `--record DIR` pairs evaluations on the manifests a `drape reproduce` record lists as the same drapes, on the drapes sha256 it names (records written since session 72), and on a data folder made again by the program and config it records)".to_string()
     } else {
         let whys: Vec<String> = [why_a, why_b].into_iter().flatten().collect();
         if whys.is_empty() {

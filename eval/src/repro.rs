@@ -702,12 +702,17 @@ impl Results {
         Some((m, p["split"].as_str()?, d))
     }
 
-    /// Whether runs `a` and `b` were evaluated on the same drapes: the same split, and the
-    /// same manifest or, where both record it, the same drapes sha256 (data made again).
+    /// Whether runs `a` and `b` were evaluated on the same drapes: the same split, and,
+    /// where both record it, the same drapes sha256 (data made again), else the same
+    /// manifest (as `drape compare` decides).
     fn same_drapes(&self, a: &str, b: &str) -> bool {
         match (self.drapes(a), self.drapes(b)) {
             (Some((ma, sa, da)), Some((mb, sb, db))) => {
-                sa == sb && (ma == mb || (da.is_some() && da == db))
+                sa == sb
+                    && match (da, db) {
+                        (Some(da), Some(db)) => da == db,
+                        _ => ma == mb,
+                    }
             }
             (None, None) => true,
             _ => false,
@@ -1898,7 +1903,7 @@ pub fn write_report(
                         .map(|m| format!("`{}`", &m[..12.min(m.len())]))
                         .collect();
                     format!(
-                        "; made again by the same binary, so the same drapes as manifest {} (the manifests differ in their timings only)",
+                        "; made again with the same drapes as manifest {} (by the same binary, or with the same drapes sha256; the manifests differ in their timings only)",
                         earlier.join(", ")
                     )
                 };

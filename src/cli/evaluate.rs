@@ -119,7 +119,8 @@ pub struct CompareArgs {
     #[arg(long, value_name = "FILE.json")]
     json: Option<PathBuf>,
     /// A `drape reproduce` record folder (docs/reproduction-record/PLAN): evaluations on
-    /// manifests it lists as the same drapes pair, and so do evaluations on a data folder
+    /// manifests it lists as the same drapes pair, and so do evaluations that record the
+    /// drapes sha256 it names (records since session 72) and evaluations on a data folder
     /// made again by the program and config it records (whose manifest differs in timings).
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,

@@ -43,7 +43,8 @@ pub struct ReproduceArgs {
     /// --mixed-builds`: two builds drape differently by up to 15 mm; its manifest then
     /// records no program), and make again, with this build, a dataset the record says
     /// another build draped and evaluations were made on (runs on the new drapes then do
-    /// not pair with those). Without it either stops the plan with an error that names
+    /// not pair with those, unless the record names their drapes sha256 and the new
+    /// drapes have it). Without it either stops the plan with an error that names
     /// the build (and, for a dataset to be made again, how to make the same drapes).
     #[arg(long)]
     mixed_builds: bool,
@@ -526,7 +527,7 @@ fn stages(
                 anyhow::bail!(why);
             }
             println!(
-                "warning (--mixed-builds: made with this build, its runs will not pair with the recorded evaluations): {why}"
+                "warning (--mixed-builds: made with this build, its runs pair with the recorded evaluations only if it drapes the same bytes): {why}"
             );
         }
     }

@@ -47,9 +47,10 @@ pub struct DataSummary {
     pub failed: usize,
     /// The simulator's stepping, as the report prints it.
     pub stepping: String,
-    /// The manifests' sha256 of earlier generations of the same drapes: the same config
-    /// made again by the same program (one binary drapes the same bytes: docs/datasets.md)
-    /// after a working folder was lost. Their manifests differ only in the timings they
+    /// The manifests' sha256 of earlier generations of the same drapes
+    /// ([`Self::same_drapes_as`]: the same drapes sha256, or, where a summary has none,
+    /// the same config made again by the same program, as one binary drapes the same
+    /// bytes: docs/datasets.md) after a working folder was lost. Their manifests differ only in the timings they
     /// record, so evaluations on them pair with evaluations on this one.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub same_drapes: Vec<String>,
@@ -756,6 +757,11 @@ samples = 2
         std::fs::write(out.join("eval/base/metrics.json"), m.to_string()).unwrap();
         let e = remake_differs(&p, &out, "shirt", Some(&other)).unwrap();
         assert!(e.contains("is the recorded ffffffffffff"), "{e}");
+        // ...and one that records other drapes does not.
+        let m = serde_json::json!({"provenance": {"manifest_sha256": "9".repeat(64),
+            "split": "test", "drapes_sha256": "7".repeat(64)}});
+        std::fs::write(out.join("eval/base/metrics.json"), m.to_string()).unwrap();
+        assert_eq!(remake_differs(&p, &out, "shirt", Some(&other)), None);
         evaluated_on(&manifest);
         write_summary(&summary("b", Some("a"), "c"));
         // Evaluated on other drapes, or a record that names no build, or the data there
@@ -804,6 +810,31 @@ samples = 2
         assert!(
             summary("2", Some("p"), "c")
                 .after(Some(summary("1", None, "c")))
+                .same_drapes
+                .is_empty()
+        );
+        // A summary that names the drapes sha256 after one written before it did (none):
+        // the program and config decide, as before.
+        let named = |manifest: &str, program: &str, drapes: &str| {
+            let mut s = summary(manifest, Some(program), "c");
+            s.drapes_sha256 = Some(drapes.repeat(64));
+            s
+        };
+        let linked = named("2", "p", "d").after(Some(first.clone()));
+        assert_eq!(linked.same_drapes, vec!["1".repeat(64)]);
+        assert!(
+            named("2", "q", "d")
+                .after(Some(first.clone()))
+                .same_drapes
+                .is_empty()
+        );
+        // Where both name it, it decides, whatever the programs: the links carry over to
+        // another build's making of the same bytes, and not to the same build's other bytes.
+        let third = named("3", "q", "d").after(Some(linked.clone()));
+        assert_eq!(third.same_drapes, vec!["1".repeat(64), "2".repeat(64)]);
+        assert!(
+            named("3", "p", "e")
+                .after(Some(linked))
                 .same_drapes
                 .is_empty()
         );
