@@ -142,7 +142,7 @@ impl SameDrapes {
             .filter(|r| {
                 r.manifest_sha256 == m
                     || r.same_drapes.iter().any(|s| s == m)
-                    || (drapes.is_some() && r.drapes_sha256.as_deref() == drapes)
+                    || r.names_drapes(drapes)
             })
             .map(|r| r.manifest_sha256.clone())
             .collect();

@@ -102,6 +102,11 @@ impl DataSummary {
         self
     }
 
+    /// Whether this summary names `drapes` (a drapes sha256, if any) as its drapes.
+    pub fn names_drapes(&self, drapes: Option<&str>) -> bool {
+        drapes.is_some() && self.drapes_sha256.as_deref() == drapes
+    }
+
     /// Whether this dataset holds the same drapes as `other`: where both record the
     /// drapes' identity, whether it is the same (whichever builds made them); otherwise,
     /// whether they were made from the same config by the same program, recorded in both
@@ -474,8 +479,7 @@ pub fn remake_differs(plan: &Plan, out: &Path, key: &str, program: Option<&str>)
                     p["manifest_sha256"]
                         .as_str()
                         .is_some_and(|m| drapes.contains(&m))
-                        || (s.drapes_sha256.is_some()
-                            && p["drapes_sha256"].as_str() == s.drapes_sha256.as_deref())
+                        || s.names_drapes(p["drapes_sha256"].as_str())
                 })
         })
         .map(|r| r.key.as_str())
