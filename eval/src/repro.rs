@@ -1074,12 +1074,12 @@ const TSHIRT_10K: &str = "tshirt-local-10k";
 /// training: the gain halves" and "A third of the drapes at 143,000 samples"), paired
 /// against the plan's 36-epoch runs: named in the 3k GarNet-Local's paragraph of "Where a
 /// claim does not hold".
-const LONGER_RUN: &str = " Measured since on this plan's data, outside this plan (sessions 60 to 62 and 71 to 73; docs/learn.md, \"Twice the reproduction's training\", \"Four times the training: the gain halves\" and \"A third of the drapes at 143,000 samples\"): GarNet-Local trained 72 epochs instead of 36 (143,136 samples seen, the same config otherwise) reaches 1.93 cm and 15.39° with seed 1 and 1.90 cm and 15.47° with seed 2, 0.267 ± 0.011 and 0.215 ± 0.011 cm closer than the 36-epoch runs of those seeds, paired over the 397 test drapes. Trained 144 epochs (286,272 samples seen, seed 1, on the same drapes made again; docs/eval/tshirt-local-144.json) it reaches 1.83 cm and 14.96°, 0.366 ± 0.014 cm and 1.70 ± 0.05° closer than its 36-epoch run, paired over the 397 test drapes, and its validation Edist stayed within 1.711 to 1.751 cm over its last 37 epochs. On these 1,988 training drapes, longer training alone does not bring the paper's network near 1 cm. More drapes help by tenths of a centimetre: trained on the first 663 of them for 216 epochs (143,208 samples, seed 1, session 73; docs/eval/tshirt-local-repro-third.json) it reaches 2.07 cm and 16.07°, so three times the drapes took about 0.14 cm off at the same samples (one seed, a difference of means against the 72-epoch run).";
+const RUNS_SINCE: &str = " Measured since on this plan's data, outside this plan (sessions 60 to 62 and 71 to 73; docs/learn.md, \"Twice the reproduction's training\", \"Four times the training: the gain halves\" and \"A third of the drapes at 143,000 samples\"): GarNet-Local trained 72 epochs instead of 36 (143,136 samples seen, the same config otherwise) reaches 1.93 cm and 15.39° with seed 1 and 1.90 cm and 15.47° with seed 2, 0.267 ± 0.011 and 0.215 ± 0.011 cm closer than the 36-epoch runs of those seeds, paired over the 397 test drapes. Trained 144 epochs (286,272 samples seen, seed 1, on the same drapes made again; docs/eval/tshirt-local-144.json) it reaches 1.83 cm and 14.96°, 0.366 ± 0.014 cm and 1.70 ± 0.05° closer than its 36-epoch run, paired over the 397 test drapes, and its validation Edist stayed within 1.711 to 1.751 cm over its last 37 epochs. On these 1,988 training drapes, longer training alone does not bring the paper's network near 1 cm. More drapes help by tenths of a centimetre: trained on the first 663 of them for 216 epochs (143,208 samples, seed 1, session 73; docs/eval/tshirt-local-repro-third.json) it reaches 2.07 cm and 16.07°, so three times the drapes took about 0.14 cm off at the same samples (one seed, a difference of means against the 72-epoch run).";
 
-/// Whether `LONGER_RUN` describes this plan's GarNet-Local: trained 36 epochs on the
+/// Whether `RUNS_SINCE` describes this plan's GarNet-Local: trained 36 epochs on the
 /// `cpu-repro-tshirt` data, as `configs/repro/cpu.toml` does (other plans train it on other
-/// data or for other lengths, and the longer runs measured are not theirs).
-fn names_longer_run(plan: &Plan) -> bool {
+/// data or for other lengths, and the runs measured since are not theirs).
+fn names_runs_since(plan: &Plan) -> bool {
     let Some(run) = plan.runs.iter().find(|r| r.key == "tshirt-local") else {
         return false;
     };
@@ -1101,9 +1101,9 @@ fn meets_accuracy_bar(edist_cm: f64, enorm_deg: f64) -> bool {
 /// about its cause, named as such. Empty when every claim holds or is not measured yet.
 /// The ordering is judged on each network's mean over its evaluated seeds, and the
 /// scatter between seeds measured in this plan is named beside the gap.
-/// `longer_run`: the plan trains GarNet-Local as the CPU plan does (36 epochs on
-/// `cpu-repro-tshirt`), so the longer runs measured since on that data (`LONGER_RUN`) apply.
-fn shortfalls(r: &Results, longer_run: bool) -> Vec<String> {
+/// `runs_since`: the plan trains GarNet-Local as the CPU plan does (36 epochs on
+/// `cpu-repro-tshirt`), so the runs measured since on that data (`RUNS_SINCE`) apply.
+fn shortfalls(r: &Results, runs_since: bool) -> Vec<String> {
     let f = |k: &str, m: &str, field: &str| r.figure(k, m, field, false);
     let mut why = Vec::new();
     // The ordering is judged on each network's mean over its evaluated seeds.
@@ -1297,8 +1297,8 @@ fn shortfalls(r: &Results, longer_run: bool) -> Vec<String> {
     }
     if d >= 1.0 {
         text += " What limits the network's Edist, as measured earlier (docs/findings.md, \"Samples seen\" and \"What limits the networks\"; docs/learn.md): trained about 36 epochs it underfits (its training Edist equals its validation Edist), and doubling the samples it sees took about 0.2 cm off up to 143,136 samples, but the next doubling took about 0.10 cm: on `cpu-repro-tshirt`'s 1,988 training drapes, GarNet-Local trained 144 epochs (286,272 samples seen) reaches 1.83 cm against 1.93 cm at 72 epochs, with its training Edist (1.61 cm) below its validation Edist (1.72 cm). Longer training alone is not the way to 1 cm. On `cpu-curve`, 70,000 samples (about this plan's 36 epochs) reached 1.71 to 1.73 cm with layer normalisation (two seeds) and 1.67 cm with body offsets too; the paper's network has neither.";
-        if longer_run && key == "tshirt-local" {
-            text += LONGER_RUN;
+        if runs_since && key == "tshirt-local" {
+            text += RUNS_SINCE;
         }
     } else {
         text += " Edist meets the bar and Enorm does not. Enorm depends on the mesh resolution (above); earlier runs on `cpu-curve` with layer normalisation lowered it from 16.44° to 15.59° from 35,000 to 70,000 samples seen (docs/findings.md, \"Samples seen\").";
@@ -1561,7 +1561,7 @@ pub fn write_report(
             };
             writeln!(w, "Edist differences between runs, paired over the test samples both evaluated: the mean of the per-sample differences ± its standard error. A gap within about two standard errors is one the test set cannot tell apart. {seeds_note}\n\n| difference | Edist (cm) | samples |\n|---|---|---|\n{}\n", pairs.join("\n")).unwrap();
         }
-        let why = shortfalls(&r, names_longer_run(plan));
+        let why = shortfalls(&r, names_runs_since(plan));
         if !why.is_empty() {
             writeln!(w, "### Where a claim does not hold\n\nWhat limits it and what would fix it. The figures measured in earlier sessions, on other data and runs, are named as such, with the page that has them.\n\n{}\n", why.join("\n\n")).unwrap();
         }
@@ -2122,9 +2122,9 @@ samples = 1
             }
             let plan = Plan::load(&path).unwrap();
             plans += 1;
-            // The longer runs measured on the CPU plan's data are named in its report only.
+            // The runs measured since on the CPU plan's data are named in its report only.
             assert_eq!(
-                names_longer_run(&plan),
+                names_runs_since(&plan),
                 plan.name == "cpu",
                 "{}",
                 path.display()
@@ -2341,7 +2341,7 @@ samples = 1
         let with_abl = shortfalls(&r, true);
         assert!(with_abl[1].contains("the ridge map 1.50 cm: the inputs hold more than the network learns in this plan's training. The paper's loss costs Edist here: trained on L_vert alone (the loss ablation below), GarNet-Local reaches 2.00 cm (-0.200 ± 0.000 cm, paired over 3 test drapes), with Enorm 19.00° against 16.70° and 7.5% of its vertices inside the body against 1.0%."), "{}", with_abl[1]);
         r.evals.remove("tshirt-local-abl-vert");
-        // The longer runs measured since on the plan's data are named after the lever.
+        // The runs measured since on the plan's data are named after the lever.
         assert!(
             why[1].contains("the paper's network has neither. Measured since on this plan's data, outside this plan (sessions 60 to 62 and 71 to 73;"),
             "{}",
@@ -2403,7 +2403,7 @@ samples = 1
         assert_eq!(why.len(), 1, "{why:?}");
         assert!(why[0].contains("reaches 1.50 cm and 13.00° on the 10k T-shirt (on the 3k T-shirt it meets the bar: 0.90 cm, 11.00°). On the 10k T-shirt's test drapes the kernel map"), "{}", why[0]);
         assert!(why[0].contains("reaches 1.20 cm and 12.50°"), "{}", why[0]);
-        // The longer run was the 3k T-shirt's: not named for the 10k one.
+        // The runs since were the 3k T-shirt's: not named for the 10k one.
         assert!(!why[0].contains("Measured since"), "{}", why[0]);
         // The lever measured on the 3k T-shirt is named, with no extrapolation.
         assert!(
