@@ -95,8 +95,7 @@ fn overfit(base: &str, tmp: &Path, data: &Path, variant: &str) -> Result<f64, St
     }
     let log = std::fs::read_to_string(run_dir.join("log.csv")).unwrap();
     log.lines()
-        .filter(|l| l.contains(",train,"))
-        .last()
+        .rfind(|l| l.contains(",train,"))
         .and_then(|l| l.rsplit(',').next())
         .and_then(|v| v.parse().ok())
         .ok_or_else(|| format!("no train row in {log}"))

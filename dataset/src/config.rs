@@ -333,10 +333,10 @@ impl DatasetConfig {
     /// The resolved config as canonical JSON (what the manifest stores and hashes).
     pub fn resolved_json(&self) -> serde_json::Value {
         let mut v = serde_json::to_value(self).expect("configs serialise");
-        if !self.sizes {
-            if let Some(o) = v.as_object_mut() {
-                o.remove("size_pick");
-            }
+        if !self.sizes
+            && let Some(o) = v.as_object_mut()
+        {
+            o.remove("size_pick");
         }
         v
     }

@@ -666,12 +666,12 @@ pub fn generate(
     let mut resumed = 0usize;
     for s in &mine {
         let rp = record_path(dir, &s.file);
-        if let (Ok(text), true) = (std::fs::read(&rp), dir.join(&s.file).exists()) {
-            if let Ok(r) = serde_json::from_slice::<ShardRecord>(&text) {
-                resumed += s.samples.len();
-                records.insert(s.file.clone(), r);
-                continue;
-            }
+        if let (Ok(text), true) = (std::fs::read(&rp), dir.join(&s.file).exists())
+            && let Ok(r) = serde_json::from_slice::<ShardRecord>(&text)
+        {
+            resumed += s.samples.len();
+            records.insert(s.file.clone(), r);
+            continue;
         }
         for &id in &s.samples {
             let p = partial_path(dir, id);

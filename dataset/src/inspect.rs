@@ -343,15 +343,15 @@ pub fn merge(dirs: &[PathBuf], out: &Path, mixed_builds: bool) -> Result<Manifes
                     total.unwrap_or(0)
                 )));
             }
-            if let Some((other, _)) = parts.get(&m.part) {
-                if other != d {
-                    return Err(DatasetError::Invalid(format!(
-                        "part {} found twice: in {} and {}",
-                        m.part,
-                        other.display(),
-                        d.display()
-                    )));
-                }
+            if let Some((other, _)) = parts.get(&m.part)
+                && other != d
+            {
+                return Err(DatasetError::Invalid(format!(
+                    "part {} found twice: in {} and {}",
+                    m.part,
+                    other.display(),
+                    d.display()
+                )));
             }
             parts.insert(m.part, (d.clone(), m));
         }

@@ -252,11 +252,11 @@ impl Manifest {
     /// before session 26 picked sizes by the first rule: without `size_pick` it reads as 1.
     pub fn dataset_config(&self) -> Result<DatasetConfig, crate::DatasetError> {
         let mut config = self.config.clone();
-        if let Some(c) = config.as_object_mut() {
-            if c.get("sizes").and_then(|s| s.as_bool()) == Some(true) {
-                c.entry("size_pick")
-                    .or_insert(serde_json::Value::from(sim::garment::PickRule::V1.number()));
-            }
+        if let Some(c) = config.as_object_mut()
+            && c.get("sizes").and_then(|s| s.as_bool()) == Some(true)
+        {
+            c.entry("size_pick")
+                .or_insert(serde_json::Value::from(sim::garment::PickRule::V1.number()));
         }
         if let Some(sim) = config.get_mut("sim").and_then(|s| s.as_object_mut()) {
             sim.entry("stretch_iterations")
@@ -273,13 +273,13 @@ impl Manifest {
             for off in ["max_morph_speed", "max_edge_penetration"] {
                 sim.entry(off).or_insert(serde_json::Value::from(1e9));
             }
-            if let Some(substeps) = sim.get("substeps").cloned() {
-                if !sim.contains_key("settle_substeps") {
-                    // Made before session 16: settling at its substeps, elastic push-outs.
-                    sim.insert("settle_substeps".into(), substeps);
-                    sim.entry("elastic_pushout")
-                        .or_insert(serde_json::Value::from(true));
-                }
+            if let Some(substeps) = sim.get("substeps").cloned()
+                && !sim.contains_key("settle_substeps")
+            {
+                // Made before session 16: settling at its substeps, elastic push-outs.
+                sim.insert("settle_substeps".into(), substeps);
+                sim.entry("elastic_pushout")
+                    .or_insert(serde_json::Value::from(true));
             }
         }
         serde_json::from_value(config)

@@ -401,7 +401,9 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
         let (preds, timing) = net.predict_rows(&rows);
         network_seconds += timing.inputs + timing.network;
         // Each sample's garments per method, then the figures in parallel.
-        let per: Vec<(SampleEval, Vec<(String, Vec<f32>, Vec<f32>)>)> = batch
+        // Per sample: its figures, and per method the vertex distances and face angles.
+        type Errors = Vec<(String, Vec<f32>, Vec<f32>)>;
+        let per: Vec<(SampleEval, Errors)> = batch
             .par_iter()
             .zip(preds)
             .map(|(s, pred)| {

@@ -401,6 +401,40 @@ pub fn render_png(layers: &[Layer<'_>], opts: &RenderOptions) -> Result<Vec<u8>,
     encode_png(&render(layers, opts)?)
 }
 
+/// The error colour map: `t` in 0 to 1 (clamped) from dark blue through cyan, green and
+/// yellow to red, piecewise linear through five colours of even lightness steps.
+pub fn error_colour(t: f32) -> [u8; 3] {
+    const STOPS: [[f32; 3]; 5] = [
+        [40.0, 60.0, 160.0],
+        [30.0, 170.0, 210.0],
+        [90.0, 190.0, 90.0],
+        [240.0, 210.0, 50.0],
+        [210.0, 40.0, 30.0],
+    ];
+    let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
+    let x = t * (STOPS.len() - 1) as f32;
+    let k = (x.floor() as usize).min(STOPS.len() - 2);
+    let f = x - k as f32;
+    let (a, b) = (STOPS[k], STOPS[k + 1]);
+    [0, 1, 2].map(|i| (a[i] + (b[i] - a[i]) * f).round() as u8)
+}
+
+/// Stacks images top to bottom, each centred horizontally, on a background colour.
+pub fn stack(images: &[Image], background: [u8; 3]) -> Image {
+    let w = images.iter().map(|i| i.width).max().unwrap_or(1);
+    let h = images.iter().map(|i| i.height).sum::<u32>().max(1);
+    let mut oy = 0;
+    let at: Vec<(u32, u32)> = images
+        .iter()
+        .map(|img| {
+            let p = ((w - img.width) / 2, oy);
+            oy += img.height;
+            p
+        })
+        .collect();
+    compose(images, at.into_iter(), w, h, background)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -460,38 +494,4 @@ mod tests {
     fn empty_input_is_an_error() {
         assert!(render(&[], &RenderOptions::default()).is_err());
     }
-}
-
-/// The error colour map: `t` in 0 to 1 (clamped) from dark blue through cyan, green and
-/// yellow to red, piecewise linear through five colours of even lightness steps.
-pub fn error_colour(t: f32) -> [u8; 3] {
-    const STOPS: [[f32; 3]; 5] = [
-        [40.0, 60.0, 160.0],
-        [30.0, 170.0, 210.0],
-        [90.0, 190.0, 90.0],
-        [240.0, 210.0, 50.0],
-        [210.0, 40.0, 30.0],
-    ];
-    let t = if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) };
-    let x = t * (STOPS.len() - 1) as f32;
-    let k = (x.floor() as usize).min(STOPS.len() - 2);
-    let f = x - k as f32;
-    let (a, b) = (STOPS[k], STOPS[k + 1]);
-    [0, 1, 2].map(|i| (a[i] + (b[i] - a[i]) * f).round() as u8)
-}
-
-/// Stacks images top to bottom, each centred horizontally, on a background colour.
-pub fn stack(images: &[Image], background: [u8; 3]) -> Image {
-    let w = images.iter().map(|i| i.width).max().unwrap_or(1);
-    let h = images.iter().map(|i| i.height).sum::<u32>().max(1);
-    let mut oy = 0;
-    let at: Vec<(u32, u32)> = images
-        .iter()
-        .map(|img| {
-            let p = ((w - img.width) / 2, oy);
-            oy += img.height;
-            p
-        })
-        .collect();
-    compose(images, at.into_iter(), w, h, background)
 }

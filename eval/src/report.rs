@@ -380,6 +380,8 @@ pub fn write_report(
     }
 
     // metrics.json.
+    /// Per curve, per method, its (threshold, share) points.
+    type Curves<'a> = BTreeMap<&'a str, BTreeMap<String, Vec<(f64, f64)>>>;
     #[derive(Serialize)]
     struct Json<'a> {
         provenance: &'a Provenance,
@@ -388,7 +390,7 @@ pub fn write_report(
         vertices: usize,
         training_samples: usize,
         summaries: &'a BTreeMap<String, Summary>,
-        curves: BTreeMap<&'a str, BTreeMap<String, Vec<(f64, f64)>>>,
+        curves: Curves<'a>,
         network_seconds_per_drape: f64,
         batch: usize,
         workers: usize,

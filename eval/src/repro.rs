@@ -131,7 +131,7 @@ impl Plan {
     /// for as many epochs, hours are positive. ([`Plan::check_seed_configs`] compares the
     /// seeds' configs.)
     pub fn validate(&self) -> Result<(), String> {
-        if !(self.budget_hours > 0.0) {
+        if self.budget_hours.is_nan() || self.budget_hours <= 0.0 {
             return Err("budget_hours must be positive".into());
         }
         if self.parallel_runs == 0 {
@@ -142,7 +142,7 @@ impl Plan {
             if !seen.insert(d.key.as_str()) {
                 return Err(format!("dataset key {:?} appears twice", d.key));
             }
-            if !(d.planned_hours >= 0.0) {
+            if d.planned_hours.is_nan() || d.planned_hours < 0.0 {
                 return Err(format!("dataset {}: planned_hours must be >= 0", d.key));
             }
             if d.max_failure_rate
@@ -206,7 +206,7 @@ impl Plan {
             if !runs.insert(r.key.as_str()) {
                 return Err(format!("run key {:?} appears twice", r.key));
             }
-            if !(r.planned_hours >= 0.0) {
+            if r.planned_hours.is_nan() || r.planned_hours < 0.0 {
                 return Err(format!("run {}: planned_hours must be >= 0", r.key));
             }
             if r.epochs == Some(0) {
@@ -1281,19 +1281,18 @@ fn shortfalls(r: &Results, runs_since: bool) -> Vec<String> {
         f(abl, "network", "enorm_deg"),
         f(abl, "network", "interpenetration"),
         f(key, "network", "interpenetration"),
-    ) {
-        if v < d {
-            let paired = r
-                .paired_edist(abl, key)
-                .map_or(String::new(), |(m, se, n)| {
-                    format!(" ({m:+.3} ± {se:.3} cm, paired over {n} test drapes)")
-                });
-            text += &format!(
-                " The paper's loss costs Edist here: trained on L_vert alone (the loss ablation below), GarNet-Local reaches {v:.2} cm{paired}, with Enorm {va:.2}° against {a:.2}° and {:.1}% of its vertices inside the body against {:.1}%.",
-                vp * 100.0,
-                lp * 100.0
-            );
-        }
+    ) && v < d
+    {
+        let paired = r
+            .paired_edist(abl, key)
+            .map_or(String::new(), |(m, se, n)| {
+                format!(" ({m:+.3} ± {se:.3} cm, paired over {n} test drapes)")
+            });
+        text += &format!(
+            " The paper's loss costs Edist here: trained on L_vert alone (the loss ablation below), GarNet-Local reaches {v:.2} cm{paired}, with Enorm {va:.2}° against {a:.2}° and {:.1}% of its vertices inside the body against {:.1}%.",
+            vp * 100.0,
+            lp * 100.0
+        );
     }
     if d >= 1.0 {
         text += " What limits the network's Edist, as measured earlier (docs/findings.md, \"Samples seen\" and \"What limits the networks\"; docs/learn.md): trained about 36 epochs it underfits (its training Edist equals its validation Edist), and doubling the samples it sees took about 0.2 cm off up to 143,136 samples, but the next doubling took about 0.10 cm: on `cpu-repro-tshirt`'s 1,988 training drapes, GarNet-Local trained 144 epochs (286,272 samples seen) reaches 1.83 cm against 1.93 cm at 72 epochs, with its training Edist (1.61 cm) below its validation Edist (1.72 cm). Longer training alone is not the way to 1 cm. On `cpu-curve`, 70,000 samples (about this plan's 36 epochs) reached 1.71 to 1.73 cm with layer normalisation (two seeds) and 1.67 cm with body offsets too; the paper's network has neither.";
@@ -1657,10 +1656,10 @@ pub fn write_report(
             writeln!(w, "{line}").unwrap();
         }
         writeln!(w).unwrap();
-        if t.number == 7 {
-            if let Some(note) = curvature_robustness(&r) {
-                writeln!(w, "{note}").unwrap();
-            }
+        if t.number == 7
+            && let Some(note) = curvature_robustness(&r)
+        {
+            writeln!(w, "{note}").unwrap();
         }
     }
 

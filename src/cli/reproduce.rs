@@ -397,17 +397,17 @@ pub fn run(args: ReproduceArgs, ctx: &Context) -> anyhow::Result<()> {
                 // The record's ledger too: hours of runs still training count even if this
                 // machine is lost before they finish.
                 let mut r = c.credit();
-                if let (Ok(()), Some(rec)) = (&r, &plan.record) {
-                    if rec.is_dir() {
-                        r = c.ledger.save(&rec.join("stages.json"));
-                    }
+                if let (Ok(()), Some(rec)) = (&r, &plan.record)
+                    && rec.is_dir()
+                {
+                    r = c.ledger.save(&rec.join("stages.json"));
                 }
                 drop(c);
-                if let Err(e) = r {
-                    if !warned {
-                        eprintln!("warning: cannot save the ledger: {e}");
-                        warned = true;
-                    }
+                if let Err(e) = r
+                    && !warned
+                {
+                    eprintln!("warning: cannot save the ledger: {e}");
+                    warned = true;
                 }
             }
         });
@@ -867,11 +867,10 @@ fn train_runs(
             && to_eval.is_empty()
             && !running.0.is_empty()
             && running.0.len() < parallel
+            && let Some(d) = fill.take()
         {
-            if let Some(d) = fill.take() {
-                let t = threads.unwrap_or(1) * (parallel - running.0.len());
-                filler.start(ctx, d, t, out, clock, mixed_builds)?;
-            }
+            let t = threads.unwrap_or(1) * (parallel - running.0.len());
+            filler.start(ctx, d, t, out, clock, mixed_builds)?;
         }
         if running.0.is_empty() {
             filler.stop(plan, out, clock)?;

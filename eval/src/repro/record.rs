@@ -612,8 +612,10 @@ samples = 2
         let root = tempfile::tempdir().unwrap();
         let (out, rec) = (root.path().join("out"), root.path().join("record"));
         let p = plan(&rec);
-        let mut ledger = Ledger::default();
-        ledger.machine_seconds = 3600.0;
+        let mut ledger = Ledger {
+            machine_seconds: 3600.0,
+            ..Default::default()
+        };
         ledger.seconds.insert("train base".into(), 3600.0);
         ledger.done.insert("train base".into(), true);
 
@@ -849,8 +851,10 @@ samples = 2
         let root = tempfile::tempdir().unwrap();
         let (out, rec) = (root.path().join("out"), root.path().join("record"));
         let p = plan(&rec);
-        let mut ledger = Ledger::default();
-        ledger.machine_seconds = 900.0;
+        let mut ledger = Ledger {
+            machine_seconds: 900.0,
+            ..Default::default()
+        };
         ledger.seconds.insert("gen shirt".into(), 900.0);
         std::fs::create_dir_all(&rec).unwrap();
         ledger.save(&rec.join("stages.json")).unwrap();

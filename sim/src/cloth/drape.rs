@@ -388,7 +388,7 @@ impl DrapeReport {
     /// fails as slid down: it came to rest, but not on the body.
     pub fn judge_top_drop(&mut self, drop: f32) {
         self.top_drop = Some(drop);
-        if self.failure.is_none() && !(drop <= MAX_TOP_DROP) {
+        if self.failure.is_none() && (drop.is_nan() || drop > MAX_TOP_DROP) {
             self.failure = Some(Failure::SlidDown { drop });
             self.converged = false;
         }

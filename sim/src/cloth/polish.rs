@@ -127,16 +127,17 @@ pub fn polish(
     let mut sliders: Vec<Slider> = Vec::new();
     let mut slot = vec![usize::MAX; x.len()];
     for (i, c) in contact.iter().enumerate() {
-        if let Some((d, n)) = c {
-            if *d < reach && model.inv_mass[i] > 0.0 {
-                slot[i] = sliders.len();
-                sliders.push(Slider {
-                    i,
-                    normal: *n,
-                    start: x[i],
-                    edges: Vec::new(),
-                });
-            }
+        if let Some((d, n)) = c
+            && *d < reach
+            && model.inv_mass[i] > 0.0
+        {
+            slot[i] = sliders.len();
+            sliders.push(Slider {
+                i,
+                normal: *n,
+                start: x[i],
+                edges: Vec::new(),
+            });
         }
     }
     for (i, j, rest) in stretch() {
@@ -191,11 +192,11 @@ pub fn polish(
         if moved == 0.0 || moved < clearance - thickness {
             continue;
         }
-        if let Some(h) = body.closest(*p, CLEARANCE_RADIUS) {
-            if h.distance < thickness {
-                *p = h.point + h.normal * thickness;
-                pushed_out += 1;
-            }
+        if let Some(h) = body.closest(*p, CLEARANCE_RADIUS)
+            && h.distance < thickness
+        {
+            *p = h.point + h.normal * thickness;
+            pushed_out += 1;
         }
     }
     let moves = x.iter().zip(&x0).map(|(a, b)| a.distance(*b));

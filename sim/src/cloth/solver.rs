@@ -379,7 +379,7 @@ impl<'m> Solver<'m> {
             substeps(self, a);
         }
         self.helper_half_sweeps += u64::from(team.helped.load(Ordering::Acquire));
-        drop(team);
+        // The team, which borrows the sweeps, is done with them: they go back.
         self.slow = slow;
         self.sweep = sweep;
         self.stretch_only = stretch_only;
@@ -439,7 +439,7 @@ impl<'m> Solver<'m> {
             let mut b = team.b.lock().expect("the helper does not panic");
             self.halves.gather(&self.x, a, &mut b);
         }
-        if s % interval == 0 {
+        if s.is_multiple_of(interval) {
             // Shear and bending first, so the stretch sweep has the last word before
             // the contacts.
             team.sweep(SLOW, a);

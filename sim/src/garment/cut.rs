@@ -75,10 +75,10 @@ fn triangle_neighbours(triangles: &[[u32; 3]]) -> Vec<[u32; 3]> {
             let mut n = [u32::MAX; 3];
             for k in 0..3 {
                 let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                if let Some(list) = by_edge.get(&(a.min(b), a.max(b))) {
-                    if let Some(&o) = list.iter().find(|&&o| o != t as u32) {
-                        n[k] = o;
-                    }
+                if let Some(list) = by_edge.get(&(a.min(b), a.max(b)))
+                    && let Some(&o) = list.iter().find(|&&o| o != t as u32)
+                {
+                    n[k] = o;
                 }
             }
             n

@@ -351,12 +351,12 @@ impl GarmentDef {
                 ));
             }
         }
-        if let Some(n) = def.substeps() {
-            if !(1..=1000).contains(&n) {
-                return Err(format!(
-                    "{origin}: simulation substeps must be from 1 to 1000 (got {n})"
-                ));
-            }
+        if let Some(n) = def.substeps()
+            && !(1..=1000).contains(&n)
+        {
+            return Err(format!(
+                "{origin}: simulation substeps must be from 1 to 1000 (got {n})"
+            ));
         }
         if let Some(g) = &def.grading {
             if g.by.is_empty() || g.sizes.is_empty() {

@@ -437,12 +437,11 @@ impl Library {
             .expect("a built-in definition");
         let key = format!("{}-grade{GRADE_VERSION}", self.key(text)?);
         let path = self.size_path(name, vertices, size);
-        if path.exists() {
-            if let Ok(t) = Template::load(&path, model.triangles.len(), model.skeleton.len()) {
-                if t.meta.key == key {
-                    return Ok(t);
-                }
-            }
+        if path.exists()
+            && let Ok(t) = Template::load(&path, model.triangles.len(), model.skeleton.len())
+            && t.meta.key == key
+        {
+            return Ok(t);
         }
         let base = self.get(name, vertices, model, built)?;
         built(&format!(
