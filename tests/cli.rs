@@ -174,6 +174,17 @@ fn bad_parameters_are_rejected() {
 #[test]
 fn bad_outputs_and_bad_libraries_are_rejected() {
     let dir = tempfile::tempdir().unwrap();
+    // `drape body` without a subcommand needs its output, and says so in its usage too.
+    fails(
+        dir.path(),
+        &["body", "--pose", "t-pose"],
+        "--output <FILE.obj>",
+    );
+    let help = String::from_utf8_lossy(&drape(&["body", "--help"]).stdout).into_owned();
+    assert!(
+        help.contains("Usage: drape body [OPTIONS] --output <FILE.obj>"),
+        "{help}"
+    );
     let same = dir.path().join("same");
     let same = same.to_str().unwrap();
     fails(

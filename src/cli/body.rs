@@ -11,7 +11,7 @@ use super::{Context, pose_spec};
 
 /// `drape body`.
 #[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct BodyArgs {
     #[command(subcommand)]
     command: Option<BodyCommand>,
@@ -22,8 +22,8 @@ pub struct BodyArgs {
     /// pose FILE.json.
     #[arg(long, default_value = "rest", value_name = "SPEC")]
     pose: String,
-    /// Output OBJ of the posed body.
-    #[arg(short = 'o', long, value_name = "FILE.obj")]
+    /// Output OBJ of the posed body (required unless a subcommand is given).
+    #[arg(short = 'o', long, value_name = "FILE.obj", required = true)]
     output: Option<PathBuf>,
     /// Also render front and side views to this PNG.
     #[arg(long, value_name = "FILE.png")]

@@ -564,8 +564,7 @@ const WARP_STRETCH_SCALE: super::simulate::Scale = super::simulate::Scale {
 pub struct BodyOutputArgs {
     #[command(flatten)]
     pub shape: ShapeArgs,
-    /// Target pose (as for `drape body --pose`); `drape predict` also takes a range of BVH
-    /// frames, FILE.bvh:FIRST-LAST, and writes one numbered file per frame.
+    /// Target pose (as for `drape body --pose`).
     #[arg(long, default_value = "rest", value_name = "SPEC")]
     pub pose: String,
     /// Output OBJ of the garment.

@@ -120,6 +120,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 
 /// `drape predict`.
 #[derive(Debug, Args)]
+#[command(mut_arg("pose", |a| a.help(
+    "Target pose (as for `drape body --pose`), or a range of BVH frames, \
+     FILE.bvh:FIRST-LAST, which writes one numbered file per frame"
+)))]
 pub struct PredictArgs {
     /// Run folder of a trained network (`drape train -o`); its best weights are used.
     #[arg(long = "model", value_name = "RUN_DIR")]
