@@ -168,13 +168,8 @@ fn bad_parameters_are_rejected() {
         &["body", "--pose", "random:x", "-o", out],
         "seed",
     );
-    fails(dir.path(), &["body"], "-o body.obj");
-}
-
-#[test]
-fn bad_outputs_and_bad_libraries_are_rejected() {
-    let dir = tempfile::tempdir().unwrap();
-    // `drape body` without a subcommand needs its output, and says so in its usage too.
+    // Without a subcommand it needs its output, and says so in its usage too.
+    fails(dir.path(), &["body"], "--output <FILE.obj>");
     fails(
         dir.path(),
         &["body", "--pose", "t-pose"],
@@ -185,6 +180,11 @@ fn bad_outputs_and_bad_libraries_are_rejected() {
         help.contains("Usage: drape body [OPTIONS] --output <FILE.obj>"),
         "{help}"
     );
+}
+
+#[test]
+fn bad_outputs_and_bad_libraries_are_rejected() {
+    let dir = tempfile::tempdir().unwrap();
     let same = dir.path().join("same");
     let same = same.to_str().unwrap();
     fails(
