@@ -170,10 +170,12 @@ pub fn run(args: BodyArgs, ctx: &Context) -> anyhow::Result<()> {
             output,
         }) => gallery(ctx, &shape, samples, seed, columns, cell_height, &output),
         None => {
-            let Some(output) = args.output.clone() else {
-                bail!("drape body needs an output file: -o body.obj (see drape body --help)");
-            };
-            build(&args, &output, ctx)
+            let output = args.output.clone();
+            build(
+                &args,
+                &output.expect("clap requires -o without a subcommand"),
+                ctx,
+            )
         }
     }
 }
