@@ -83,6 +83,18 @@ pub struct Bodies {
     pub val: u32,
     /// Test bodies.
     pub test: u32,
+    /// Number of the first body (default 0). Body `first + b` gets the shape seed
+    /// `mix(seed, BODY, first + b)` and its samples the ids `(first + b) * poses_per_body
+    /// ..`, so a dataset with the same seed and `first` past another's last body holds
+    /// other bodies and other sample ids: more training drapes for that one (`drape train
+    /// --more-data`), its validation and test bodies untouched. Left out of the resolved
+    /// config when 0, so configs without it keep their hash.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub first: u32,
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 /// Where poses come from.
@@ -318,8 +330,16 @@ impl DatasetConfig {
         self.total_bodies() * self.poses_per_body as u64
     }
 
-    /// The split of body `b` (bodies are numbered train first, then val, then test).
+    /// The sample ids: `total_samples()` of them from the first body's first pose.
+    pub fn sample_ids(&self) -> std::ops::Range<u64> {
+        let first = self.bodies.first as u64 * self.poses_per_body as u64;
+        first..first + self.total_samples()
+    }
+
+    /// The split of body `b` (bodies are numbered from `bodies.first`, train first, then
+    /// val, then test).
     pub fn split_of_body(&self, b: u64) -> Split {
+        let b = b - self.bodies.first as u64;
         let (t, v) = (self.bodies.train as u64, self.bodies.val as u64);
         if b < t {
             Split::Train

@@ -289,11 +289,13 @@ pub fn redrape(
     ids: &[u64],
 ) -> Result<Vec<(Option<Row>, SampleRecord)>, DatasetError> {
     use rayon::prelude::*;
-    let total = config.total_samples();
-    if let Some(bad) = ids.iter().find(|&&id| id >= total) {
+    let range = config.sample_ids();
+    if let Some(bad) = ids.iter().find(|&&id| !range.contains(&id)) {
         return Err(DatasetError::Invalid(format!(
-            "sample {bad} does not exist: {} has {total} samples",
-            config.name
+            "sample {bad} does not exist: {}'s samples are {} to {}",
+            config.name,
+            range.start,
+            range.end - 1
         )));
     }
     let (model, library, template) = load_inputs(config, assets, &mut |_| {})?;

@@ -3,7 +3,7 @@
 //! enters it.
 //!
 //! Sample `id` is body `id / poses_per_body`, pose `id % poses_per_body`; bodies are
-//! numbered train first, then val, then test. A body's shape comes from
+//! numbered from `bodies.first` (default 0), train first, then val, then test. A body's shape comes from
 //! `mix(seed, BODY, body)`, a sample's pose from `mix(seed, POSE, id)`.
 
 use std::path::PathBuf;
@@ -79,7 +79,8 @@ pub struct ShardPlan {
 pub fn shards(c: &DatasetConfig) -> Vec<ShardPlan> {
     let mut out = Vec::new();
     for split in Split::ALL {
-        let ids: Vec<u64> = (0..c.total_samples())
+        let ids: Vec<u64> = c
+            .sample_ids()
             .filter(|&id| sample_plan(c, id).split == split)
             .collect();
         for (k, chunk) in ids.chunks(c.samples_per_shard as usize).enumerate() {
@@ -240,6 +241,45 @@ mod tests {
         let mut d = c.clone();
         d.seed += 1;
         assert_ne!(sample_plan(&d, 0).pose_seed, a[0].pose_seed);
+    }
+
+    #[test]
+    fn bodies_from_first_are_other_bodies_with_other_ids() {
+        let c = DatasetConfig::load("small").unwrap();
+        let ppb = c.poses_per_body as u64;
+        let mut more = c.clone();
+        more.bodies = crate::config::Bodies {
+            first: c.total_bodies() as u32,
+            train: 3,
+            val: 0,
+            test: 0,
+        };
+        // The config without `first` keeps its resolved form (and so its hash).
+        assert!(c.resolved_json()["bodies"].get("first").is_none());
+        assert_eq!(more.resolved_json()["bodies"]["first"], c.total_bodies());
+        let ids = more.sample_ids();
+        assert_eq!(ids.start, c.sample_ids().end);
+        assert_eq!(ids.end - ids.start, 3 * ppb);
+        let plans: Vec<SamplePlan> = ids.clone().map(|i| sample_plan(&more, i)).collect();
+        assert!(plans.iter().all(|p| p.split == Split::Train));
+        assert_eq!(plans[0].body, c.total_bodies());
+        assert_eq!(plans[0].pose_index, 0);
+        // Body b's seeds are those a bigger dataset of the same seed gives body b.
+        let mut big = c.clone();
+        big.bodies.train = c.total_bodies() as u32 + 3;
+        for p in &plans {
+            let q = sample_plan(&big, p.id);
+            assert_eq!((q.shape_seed, q.pose_seed), (p.shape_seed, p.pose_seed));
+        }
+        let original: std::collections::HashSet<u64> = (0..c.total_samples())
+            .map(|i| sample_plan(&c, i).shape_seed)
+            .collect();
+        assert!(plans.iter().all(|p| !original.contains(&p.shape_seed)));
+        // The shards hold exactly those ids, train shards numbered from 0.
+        let all = shards(&more);
+        assert_eq!(all[0].file, "train-00000.safetensors");
+        let held: Vec<u64> = all.iter().flat_map(|s| s.samples.clone()).collect();
+        assert_eq!(held, ids.collect::<Vec<_>>());
     }
 
     #[test]

@@ -174,13 +174,18 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
         .num_threads(threads)
         .build()?;
     println!(
-        "{}: {} on {} bodies (train/val/test {}/{}/{}) x {} poses = {} drapes{}, {} threads -> {}",
+        "{}: {} on {} bodies (train/val/test {}/{}/{}{}) x {} poses = {} drapes{}, {} threads -> {}",
         config.name,
         config.garment,
         config.total_bodies(),
         config.bodies.train,
         config.bodies.val,
         config.bodies.test,
+        if config.bodies.first > 0 {
+            format!(", numbered from {}", config.bodies.first)
+        } else {
+            String::new()
+        },
         config.poses_per_body,
         config.total_samples(),
         if parts > 1 {

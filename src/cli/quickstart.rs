@@ -247,7 +247,8 @@ pub fn run(args: QuickstartArgs, ctx: &Context) -> anyhow::Result<()> {
 
 /// `--reference`: the network's Edist on the first 10 test samples, redraped.
 fn reference(ctx: &Context, run_dir: &Path, dc: &DatasetConfig, out: &Path) -> anyhow::Result<()> {
-    let first = (dc.bodies.train + dc.bodies.val) as u64 * dc.poses_per_body as u64;
+    let first =
+        dc.sample_ids().start + (dc.bodies.train + dc.bodies.val) as u64 * dc.poses_per_body as u64;
     let ids: Vec<u64> = (first..first + 10).collect();
     let t0 = Instant::now();
     let drapes = dataset::generate::redrape(dc, &ctx.assets, &ids)?;
