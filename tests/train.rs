@@ -1184,3 +1184,114 @@ fn gradients_on_two_workers_are_the_whole_batchs() {
         "with L_MC: {worst_but_bias} of a parameter's largest gradient"
     );
 }
+
+/// Converged drapes of a split in a dataset's manifest.
+fn converged(data: &Path, split: &str) -> usize {
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("manifest.json")).unwrap())
+            .unwrap();
+    m["shards"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|s| s["samples"].as_array().unwrap())
+        .filter(|r| r["ok"] == true && r["split"] == split)
+        .count()
+}
+
+/// `--more-data`: a dataset of other bodies (`[bodies] first` past tiny's four) adds its
+/// training drapes to every epoch; the run records it and resumes only with it; a dataset
+/// holding the same sample ids and a prior fitted on one dataset are refused.
+#[test]
+fn more_data_trains_on_other_bodies_drapes_too() {
+    let (tmp, data) = generated("tiny");
+    let tiny = std::fs::read_to_string("configs/datasets/tiny.toml").unwrap();
+    let splits = "[bodies]\ntrain = 2\nval = 1\ntest = 1";
+    assert!(tiny.contains(splits));
+    let more_cfg = tmp.path().join("tiny-more.toml");
+    std::fs::write(
+        &more_cfg,
+        tiny.replace("name = \"tiny\"", "name = \"tiny-more\"")
+            .replace(splits, "[bodies]\nfirst = 4\ntrain = 2\nval = 0\ntest = 0"),
+    )
+    .unwrap();
+    let more = tmp.path().join("more");
+    let (ok, text) = run(drape().arg("gen").arg(&more_cfg).arg("-o").arg(&more));
+    assert!(ok && text.contains("numbered from 4"), "{text}");
+    // Its samples are bodies 4 and 5's, ids 8 to 11, all training drapes.
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(more.join("manifest.json")).unwrap())
+            .unwrap();
+    let ids: Vec<u64> = m["shards"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|s| s["samples"].as_array().unwrap())
+        .map(|r| r["id"].as_u64().unwrap())
+        .collect();
+    assert_eq!(ids, vec![8, 9, 10, 11]);
+    let (own, added) = (converged(&data, "train"), converged(&more, "train"));
+    assert!(own > 0 && added > 0, "{own} {added}");
+
+    let cfg = config(tmp.path(), 2, "local", "");
+    let run_dir = tmp.path().join("run");
+    let with_more = ["--more-data".as_ref(), more.as_os_str()];
+    let (ok, text) = train(&cfg, &data, &run_dir, &with_more);
+    assert!(ok, "{text}");
+    // Each epoch trains on both datasets' drapes; validation on tiny's.
+    let log = std::fs::read_to_string(run_dir.join("log.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = log
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 4, "{log}");
+    for r in &rows {
+        let want = if r[1] == "train" {
+            own + added
+        } else {
+            converged(&data, "val")
+        };
+        assert_eq!(r[2].parse::<usize>().unwrap(), want, "{log}");
+    }
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("run.json")).unwrap()).unwrap();
+    assert_eq!(info["more_data"][0]["dataset"], "tiny-more", "{info}");
+    assert_eq!(info["more_data"][0]["train_drapes"], added, "{info}");
+    assert_eq!(info["dataset"], "tiny", "{info}");
+
+    // Resumed without the more data: refused, naming it.
+    let (ok, text) = train(&cfg, &data, &run_dir, &[]);
+    assert!(
+        !ok && text.contains("was trained with --more-data tiny-more"),
+        "{text}"
+    );
+    // With it, the finished run stays as it is.
+    let steps = std::fs::read_to_string(run_dir.join("steps.csv")).unwrap();
+    let (ok, text) = train(&cfg, &data, &run_dir, &with_more);
+    assert!(ok, "{text}");
+    assert_eq!(
+        steps,
+        std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
+    );
+    // A dataset holding the same sample ids: refused before a run folder is made.
+    let twice = tmp.path().join("run-twice");
+    let (ok, text) = train(
+        &cfg,
+        &data,
+        &twice,
+        &["--more-data".as_ref(), data.as_os_str()],
+    );
+    assert!(
+        !ok && text.contains("hold sample id 0") && text.contains("[bodies] first"),
+        "{text}"
+    );
+    assert!(!twice.exists());
+    // A prior fitted on the first dataset only: refused.
+    let prior = config(tmp.path(), 2, "local", "\nprior = \"linear\"");
+    let (ok, text) = train(&prior, &data, &twice, &with_more);
+    assert!(
+        !ok && text.contains("cannot train with --more-data"),
+        "{text}"
+    );
+}

@@ -141,6 +141,7 @@ impl Predictor {
                 init: None,
                 curvature_scales: None,
                 faces_sha256: None,
+                more_data: Vec::new(),
             },
             device,
             workers: Workers::new(0, usize::MAX),

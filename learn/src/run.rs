@@ -179,6 +179,36 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                 ))),
             }
         }
+        Some(old)
+            if old
+                .more_data
+                .iter()
+                .map(|m| &m.drapes_sha256)
+                .ne(info.more_data.iter().map(|m| &m.drapes_sha256)) =>
+        {
+            let names = |m: &[crate::train::MoreData]| {
+                if m.is_empty() {
+                    "none".to_string()
+                } else {
+                    m.iter()
+                        .map(|d| {
+                            format!(
+                                "{} (drapes sha256 {}...)",
+                                d.dataset,
+                                dataset::manifest::short_hex(&d.drapes_sha256)
+                            )
+                        })
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                }
+            };
+            Err(LearnError::Mismatch(format!(
+                "{} was trained with --more-data {}, not {}: resume it with the data it started on, or use another -o folder",
+                run.display(),
+                names(&old.more_data),
+                names(&info.more_data)
+            )))
+        }
         // A run made before the drapes' identity: recorded now that its data is verified
         // by the manifest, so that it can resume on the same drapes made again later.
         Some(old) if old.drapes_sha256.is_none() && info.drapes_sha256.is_some() => {

@@ -455,6 +455,23 @@ pub struct RunInfo {
     /// network's convolutions were trained on. Absent in runs made before session 50.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub faces_sha256: Option<String>,
+    /// Datasets whose training drapes were trained on too (`drape train --more-data`), in
+    /// the order given; their validation and test drapes are not used.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub more_data: Vec<MoreData>,
+}
+
+/// A dataset whose training drapes a run trained on besides its own (`RunInfo::more_data`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct MoreData {
+    /// Dataset name.
+    pub dataset: String,
+    /// sha256 of its manifest file.
+    pub manifest_sha256: String,
+    /// Its drapes' identity ([`dataset::manifest::Manifest::drapes_sha256`]).
+    pub drapes_sha256: String,
+    /// Its converged training drapes.
+    pub train_drapes: usize,
 }
 
 impl RunInfo {
@@ -505,13 +522,64 @@ pub struct TrainOptions {
     pub progress: bool,
     /// Gradient workers per step ([`Workers`]; 0: one per rayon thread).
     pub workers: usize,
+    /// Datasets whose training drapes are trained on too ([`open_more_data`]).
+    pub more_data: Vec<PathBuf>,
 }
 
-/// Shards read together in one epoch, and how many of their rows train (converged, and in
-/// `max_train_samples`' subset if there is one), as the manifest lists them.
+/// Shards read together in one epoch (index into the training datasets, file), and how
+/// many of their rows train (converged, and in `max_train_samples`' subset if there is one),
+/// as the manifests list them.
 struct Group {
-    shards: Vec<String>,
+    shards: Vec<(usize, String)>,
     rows: usize,
+}
+
+/// Opens the datasets of `drape train --more-data` and checks that their training drapes
+/// can join `data`'s: the same static file (garment template, faces, canonical body), the
+/// same size templates, at least one converged training drape each, and sample ids that no
+/// other of the datasets holds (a config with `[bodies] first` past the other's bodies makes
+/// such a dataset).
+pub fn open_more_data(data: &Dataset, dirs: &[PathBuf]) -> Result<Vec<Dataset>, LearnError> {
+    let mut seen: std::collections::HashMap<u64, PathBuf> = data
+        .manifest
+        .samples()
+        .map(|s| (s.plan.id, data.dir.clone()))
+        .collect();
+    let mut out = Vec::new();
+    for dir in dirs {
+        let more = Dataset::open(dir)?;
+        let refuse = |what: String| {
+            LearnError::Mismatch(format!(
+                "--more-data {} cannot train beside {}: {what}",
+                dir.display(),
+                data.dir.display()
+            ))
+        };
+        if more.manifest.static_sha256 != data.manifest.static_sha256 {
+            return Err(refuse(format!(
+                "its static.safetensors (garment template, faces and body) differs, sha256 {}... against {}...",
+                dataset::manifest::short_hex(&more.manifest.static_sha256),
+                dataset::manifest::short_hex(&data.manifest.static_sha256)
+            )));
+        }
+        if more.manifest.size_templates != data.manifest.size_templates {
+            return Err(refuse("its garment's size templates differ".into()));
+        }
+        if more.count(Split::Train) == 0 {
+            return Err(refuse("it has no converged training drapes".into()));
+        }
+        for s in more.manifest.samples() {
+            if let Some(other) = seen.insert(s.plan.id, dir.clone()) {
+                return Err(refuse(format!(
+                    "both it and {} hold sample id {} (give its config a `[bodies] first` past the other's bodies)",
+                    other.display(),
+                    s.plan.id
+                )));
+            }
+        }
+        out.push(more);
+    }
+    Ok(out)
 }
 
 /// The epoch's groups: the training shards shuffled and read `shuffle_shards` at a time.
@@ -519,32 +587,33 @@ struct Group {
 /// partial: the epoch has `sum(ceil(rows / batch_size))` batches. The training loop checks
 /// each group's rows against `rows`, so the schedule's length cannot drift from the loop.
 fn epoch_groups(
-    data: &Dataset,
+    sources: &[&Dataset],
     config: &TrainConfig,
     subset: Option<&std::collections::HashSet<u64>>,
     epoch: usize,
 ) -> Vec<Group> {
-    let mut shards: Vec<String> = data
-        .manifest
-        .shards
+    let mut shards: Vec<(usize, &dataset::manifest::ShardRecord)> = sources
         .iter()
-        .filter(|s| s.split == Split::Train)
-        .map(|s| s.file.clone())
+        .enumerate()
+        .flat_map(|(i, d)| {
+            d.manifest
+                .shards
+                .iter()
+                .filter(|s| s.split == Split::Train)
+                .map(move |s| (i, s))
+        })
         .collect();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(config.seed ^ (epoch as u64) << 32);
     shards.shuffle(&mut rng);
     shards
         .chunks(config.shuffle_shards)
         .map(|c| Group {
-            rows: data
-                .manifest
-                .shards
+            rows: c
                 .iter()
-                .filter(|s| c.contains(&s.file))
-                .flat_map(|s| s.samples.iter())
+                .flat_map(|(_, s)| s.samples.iter())
                 .filter(|r| r.ok && subset.is_none_or(|k| k.contains(&r.plan.id)))
                 .count(),
-            shards: c.to_vec(),
+            shards: c.iter().map(|(i, s)| (*i, s.file.clone())).collect(),
         })
         .collect()
 }
@@ -601,11 +670,15 @@ fn fit_prior(
 /// Trains (or resumes) a run. Returns the final state.
 pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnError> {
     let data = Dataset::open(&opts.data)?;
-    let train_drapes = data
-        .manifest
-        .samples()
-        .filter(|s| s.plan.split == Split::Train && s.ok)
-        .count();
+    let more = open_more_data(&data, &opts.more_data)?;
+    if !more.is_empty() && !config.model.prior.is_none() {
+        return Err(LearnError::Config(format!(
+            "model.prior = \"{}\" is fitted on one dataset's training drapes: it cannot train with --more-data",
+            config.model.prior.name()
+        )));
+    }
+    let sources: Vec<&Dataset> = std::iter::once(&data).chain(&more).collect();
+    let train_drapes: usize = sources.iter().map(|d| d.count(Split::Train)).sum();
     let body = data.statics.canonical_body.len();
     if config.model.body_points > body {
         return Err(LearnError::Config(format!(
@@ -635,6 +708,17 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         init: opts.init.clone(),
         curvature_scales: None,
         faces_sha256: Some(crate::run::faces_sha256(&data.statics.garment_triangles)),
+        more_data: more
+            .iter()
+            .map(|d| {
+                Ok(MoreData {
+                    dataset: d.manifest.name.clone(),
+                    manifest_sha256: crate::run::manifest_sha256(&d.dir)?,
+                    drapes_sha256: d.manifest.drapes_sha256(),
+                    train_drapes: d.count(Split::Train),
+                })
+            })
+            .collect::<Result<_, LearnError>>()?,
     };
     // A fresh fine-tune: `init` is checked before the run's folder is written, so that a
     // refused one leaves nothing behind; its weights are loaded below.
@@ -664,9 +748,9 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     // max_train_samples: the same samples every epoch, the lowest ids of the split.
     let subset: Option<std::collections::HashSet<u64>> =
         (config.max_train_samples > 0).then(|| {
-            let mut ids: Vec<u64> = data
-                .manifest
-                .samples()
+            let mut ids: Vec<u64> = sources
+                .iter()
+                .flat_map(|d| d.manifest.samples())
                 .filter(|s| s.plan.split == Split::Train && s.ok)
                 .map(|s| s.plan.id)
                 .collect();
@@ -690,7 +774,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     // Every epoch's groups; steps of the whole run (the learning-rate schedule's length)
     // and before each epoch.
     let groups: Vec<Vec<Group>> = (0..config.epochs)
-        .map(|e| epoch_groups(&data, config, subset.as_ref(), e))
+        .map(|e| epoch_groups(&sources, config, subset.as_ref(), e))
         .collect();
     let per_epoch: Vec<usize> = groups
         .iter()
@@ -734,16 +818,21 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         let mut batch_index = 0usize;
         for group in &groups[state.epoch] {
             let mut rows = Vec::new();
-            for f in &group.shards {
-                rows.extend(data.read_shard(f)?);
+            for (i, f) in &group.shards {
+                rows.extend(sources[*i].read_shard(f)?);
             }
             if let Some(keep) = &subset {
                 rows.retain(|r| keep.contains(&r.id));
             }
             if rows.len() != group.rows {
+                let names: Vec<String> = group
+                    .shards
+                    .iter()
+                    .map(|(i, f)| sources[*i].dir.join(f).display().to_string())
+                    .collect();
                 return Err(LearnError::Mismatch(format!(
-                    "shards {} hold {} training rows; the manifest lists {}",
-                    group.shards.join(", "),
+                    "shards {} hold {} training rows; the manifests list {}",
+                    names.join(", "),
                     rows.len(),
                     group.rows
                 )));

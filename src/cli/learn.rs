@@ -20,9 +20,16 @@ pub struct TrainArgs {
     /// Training config (configs/train/*.toml).
     #[arg(value_name = "CONFIG.toml")]
     config: PathBuf,
-    /// Dataset folder (default: the config's `data`).
+    /// Dataset folder (default: the config's `data`): its training drapes train, its
+    /// validation drapes pick the best weights.
     #[arg(long, value_name = "DIR")]
     data: Option<PathBuf>,
+    /// Train on this dataset's training drapes too (repeatable): drapes of the same garment
+    /// template on other bodies, with other sample ids (a dataset config with `[bodies]
+    /// first` past the other's bodies, e.g. configs/datasets/cpu-repro-tshirt-more.toml).
+    /// Its validation and test drapes are not used. A resumed run needs the same list.
+    #[arg(long = "more-data", value_name = "DIR")]
+    more_data: Vec<PathBuf>,
     /// Run folder (default: runs/NAME). Running again with the same folder resumes.
     #[arg(short, long, value_name = "DIR")]
     output: Option<PathBuf>,
@@ -80,10 +87,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         })
     });
     eprintln!(
-        "{} ({}) on {} -> {}",
+        "{} ({}) on {}{} -> {}",
         config.name,
         config.model.variant.paper_name(),
         data.display(),
+        args.more_data
+            .iter()
+            .map(|d| format!(" + {}", d.display()))
+            .collect::<String>(),
         run.display()
     );
     let state = train(
@@ -94,6 +105,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             init: args.init,
             progress: true,
             workers: args.workers,
+            more_data: args.more_data,
         },
     )?;
     if state.finished {
