@@ -1274,6 +1274,16 @@ fn more_data_trains_on_other_bodies_drapes_too() {
         steps,
         std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
     );
+    // Resumed on tiny's drapes made again (another manifest, the same drapes, which
+    // resumes at once without more data) but without the more data: refused all the same.
+    let again = tmp.path().join("data-again");
+    let (ok, text) = run(drape().args(["gen", "tiny", "-o"]).arg(&again));
+    assert!(ok, "{text}");
+    let (ok, text) = train(&cfg, &again, &run_dir, &[]);
+    assert!(
+        !ok && text.contains("was trained with --more-data tiny-more"),
+        "{text}"
+    );
     // A dataset holding the same sample ids: refused before a run folder is made.
     let twice = tmp.path().join("run-twice");
     let (ok, text) = train(
@@ -1284,6 +1294,31 @@ fn more_data_trains_on_other_bodies_drapes_too() {
     );
     assert!(
         !ok && text.contains("hold sample id 0") && text.contains("[bodies] first"),
+        "{text}"
+    );
+    assert!(!twice.exists());
+    // Other sample ids but the same bodies (four poses per body from body 2, a validation
+    // body of tiny's, whose shape seed it shares): refused, as its drapes would put a
+    // held-out body into training.
+    let overlap_cfg = tmp.path().join("tiny-overlap.toml");
+    std::fs::write(
+        &overlap_cfg,
+        tiny.replace("name = \"tiny\"", "name = \"tiny-overlap\"")
+            .replace("poses_per_body = 2", "poses_per_body = 4")
+            .replace(splits, "[bodies]\nfirst = 2\ntrain = 1\nval = 0\ntest = 0"),
+    )
+    .unwrap();
+    let overlap = tmp.path().join("overlap");
+    let (ok, text) = run(drape().arg("gen").arg(&overlap_cfg).arg("-o").arg(&overlap));
+    assert!(ok, "{text}");
+    let (ok, text) = train(
+        &cfg,
+        &data,
+        &twice,
+        &["--more-data".as_ref(), overlap.as_os_str()],
+    );
+    assert!(
+        !ok && text.contains("its body 2 is one of") && text.contains("poses_per_body"),
         "{text}"
     );
     assert!(!twice.exists());

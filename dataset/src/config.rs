@@ -339,7 +339,9 @@ impl DatasetConfig {
     /// The split of body `b` (bodies are numbered from `bodies.first`, train first, then
     /// val, then test).
     pub fn split_of_body(&self, b: u64) -> Split {
-        let b = b - self.bodies.first as u64;
+        let b = b
+            .checked_sub(self.bodies.first as u64)
+            .expect("a body below the config's [bodies] first");
         let (t, v) = (self.bodies.train as u64, self.bodies.val as u64);
         if b < t {
             Split::Train

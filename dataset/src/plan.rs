@@ -283,6 +283,46 @@ mod tests {
     }
 
     #[test]
+    fn splits_count_bodies_from_first() {
+        let mut c = DatasetConfig::load("tiny").unwrap();
+        c.bodies = crate::config::Bodies {
+            first: 5,
+            train: 2,
+            val: 1,
+            test: 1,
+        };
+        let ppb = c.poses_per_body as u64;
+        assert_eq!(c.sample_ids(), 5 * ppb..9 * ppb);
+        let split = |body: u64| sample_plan(&c, body * ppb).split;
+        assert_eq!(
+            [split(5), split(6), split(7), split(8)],
+            [Split::Train, Split::Train, Split::Val, Split::Test]
+        );
+    }
+
+    #[test]
+    fn the_more_drapes_config_is_the_reproductions_but_its_bodies() {
+        let repro = DatasetConfig::load("cpu-repro-tshirt").unwrap();
+        let more = DatasetConfig::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../configs/datasets/cpu-repro-tshirt-more.toml")
+                .display()
+                .to_string(),
+        )
+        .unwrap();
+        assert_eq!(more.bodies.first as u64, repro.total_bodies());
+        assert_eq!((more.bodies.val, more.bodies.test), (0, 0));
+        let strip = |c: &DatasetConfig| {
+            let mut v = c.resolved_json();
+            let o = v.as_object_mut().unwrap();
+            o.remove("name");
+            o.remove("bodies");
+            v
+        };
+        assert_eq!(strip(&more), strip(&repro));
+    }
+
+    #[test]
     fn shards_cover_every_sample_once_and_parts_split_them() {
         let mut c = DatasetConfig::load("small").unwrap();
         c.samples_per_shard = 7;

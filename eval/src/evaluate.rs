@@ -293,6 +293,15 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
             data.dir.display()
         );
     }
+    for m in &net.info.more_data {
+        eprintln!(
+            "note: {} trained on {}'s {} training drapes too; the baselines fit on {}'s only",
+            run.display(),
+            m.dataset,
+            m.train_drapes,
+            data.manifest.name
+        );
+    }
     let count = data.count(opts.split).min(opts.limit.unwrap_or(usize::MAX));
     if count == 0 {
         return Err(EvalError::Invalid(format!(

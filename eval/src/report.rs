@@ -129,6 +129,11 @@ pub struct Provenance {
     pub git_revision: String,
     /// Program version.
     pub program_version: String,
+    /// Datasets whose training drapes the network trained on besides the evaluated
+    /// dataset's (`drape train --more-data`); the baselines fit on the evaluated dataset's
+    /// training drapes only.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub more_data: Vec<learn::train::MoreData>,
 }
 
 fn sha256_file(path: &Path) -> Result<String, EvalError> {
@@ -219,6 +224,11 @@ pub fn write_report(
         split: split.name().into(),
         git_revision: dataset::manifest::GIT_REVISION.into(),
         program_version: env!("CARGO_PKG_VERSION").into(),
+        more_data: learn::run::read_json::<learn::train::RunInfo>(&run.join("run.json"))
+            .ok()
+            .flatten()
+            .map(|i| i.more_data)
+            .unwrap_or_default(),
     };
 
     // Curves: CSV and PNG.
@@ -466,6 +476,21 @@ pub fn write_report(
         provenance.git_revision
     )
     .unwrap();
+    if !provenance.more_data.is_empty() {
+        let more: Vec<String> = provenance
+            .more_data
+            .iter()
+            .map(|m| format!("{} training drapes of `{}`", m.train_drapes, m.dataset))
+            .collect();
+        writeln!(
+            md,
+            "The network trained on {} too (`drape train --more-data`); the baselines fit on `{}`'s {} only.\n",
+            more.join(" and "),
+            provenance.dataset,
+            ev.train_samples
+        )
+        .unwrap();
+    }
     writeln!(md, "## Accuracy (the paper's Table 1 metrics)\n").unwrap();
     writeln!(
         md,

@@ -141,7 +141,39 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
         Err(_) => write_files(&[(&cp, text.as_bytes())])?,
     }
     let ip = run.join("run.json");
-    match read_json::<RunInfo>(&ip)? {
+    let old = read_json::<RunInfo>(&ip)?;
+    // Checked before the main dataset's identity, whose same-drapes case resumes at once.
+    if let Some(old) = &old
+        && old
+            .more_data
+            .iter()
+            .map(|m| &m.drapes_sha256)
+            .ne(info.more_data.iter().map(|m| &m.drapes_sha256))
+    {
+        let names = |m: &[crate::train::MoreData]| {
+            if m.is_empty() {
+                "none".to_string()
+            } else {
+                m.iter()
+                    .map(|d| {
+                        format!(
+                            "{} (drapes sha256 {}...)",
+                            d.dataset,
+                            dataset::manifest::short_hex(&d.drapes_sha256)
+                        )
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            }
+        };
+        return Err(LearnError::Mismatch(format!(
+            "{} was trained with --more-data {}, not {}: resume it with the data it started on, or use another -o folder",
+            run.display(),
+            names(&old.more_data),
+            names(&info.more_data)
+        )));
+    }
+    match old {
         Some(old) if old.garment != info.garment || old.vertices != info.vertices => {
             Err(LearnError::Mismatch(format!(
                 "{} was trained on {} ({} vertices), not {} ({} vertices)",
@@ -178,36 +210,6 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
                     },
                 ))),
             }
-        }
-        Some(old)
-            if old
-                .more_data
-                .iter()
-                .map(|m| &m.drapes_sha256)
-                .ne(info.more_data.iter().map(|m| &m.drapes_sha256)) =>
-        {
-            let names = |m: &[crate::train::MoreData]| {
-                if m.is_empty() {
-                    "none".to_string()
-                } else {
-                    m.iter()
-                        .map(|d| {
-                            format!(
-                                "{} (drapes sha256 {}...)",
-                                d.dataset,
-                                dataset::manifest::short_hex(&d.drapes_sha256)
-                            )
-                        })
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                }
-            };
-            Err(LearnError::Mismatch(format!(
-                "{} was trained with --more-data {}, not {}: resume it with the data it started on, or use another -o folder",
-                run.display(),
-                names(&old.more_data),
-                names(&info.more_data)
-            )))
         }
         // A run made before the drapes' identity: recorded now that its data is verified
         // by the manifest, so that it can resume on the same drapes made again later.

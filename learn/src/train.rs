@@ -545,6 +545,13 @@ pub fn open_more_data(data: &Dataset, dirs: &[PathBuf]) -> Result<Vec<Dataset>, 
         .samples()
         .map(|s| (s.plan.id, data.dir.clone()))
         .collect();
+    // Bodies by their shape seed: the same seed and body number give the same body, even
+    // under other sample ids (another `poses_per_body`).
+    let mut bodies: std::collections::HashMap<u64, PathBuf> = data
+        .manifest
+        .samples()
+        .map(|s| (s.plan.shape_seed, data.dir.clone()))
+        .collect();
     let mut out = Vec::new();
     for dir in dirs {
         let more = Dataset::open(dir)?;
@@ -568,12 +575,22 @@ pub fn open_more_data(data: &Dataset, dirs: &[PathBuf]) -> Result<Vec<Dataset>, 
         if more.count(Split::Train) == 0 {
             return Err(refuse("it has no converged training drapes".into()));
         }
+        let mut own = std::collections::HashSet::new();
         for s in more.manifest.samples() {
             if let Some(other) = seen.insert(s.plan.id, dir.clone()) {
                 return Err(refuse(format!(
                     "both it and {} hold sample id {} (give its config a `[bodies] first` past the other's bodies)",
                     other.display(),
                     s.plan.id
+                )));
+            }
+            if own.insert(s.plan.shape_seed)
+                && let Some(other) = bodies.insert(s.plan.shape_seed, dir.clone())
+            {
+                return Err(refuse(format!(
+                    "its body {} is one of {}'s (the same shape seed; give its config the other's `poses_per_body` and a `[bodies] first` past the other's bodies)",
+                    s.plan.body,
+                    other.display()
                 )));
             }
         }
@@ -678,7 +695,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         )));
     }
     let sources: Vec<&Dataset> = std::iter::once(&data).chain(&more).collect();
-    let train_drapes: usize = sources.iter().map(|d| d.count(Split::Train)).sum();
+    let train_drapes = data.count(Split::Train);
     let body = data.statics.canonical_body.len();
     if config.model.body_points > body {
         return Err(LearnError::Config(format!(

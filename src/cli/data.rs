@@ -610,6 +610,16 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 &m.config_sha256[..12],
                 &i.drapes_sha256[..12]
             );
+            if let Ok(c) = m.dataset_config()
+                && c.bodies.first > 0
+            {
+                println!(
+                    "  bodies numbered from {} (sample ids {} to {})",
+                    c.bodies.first,
+                    c.sample_ids().start,
+                    c.sample_ids().end - 1
+                );
+            }
             for s in Split::ALL {
                 let t = i.failures_by_split.get(&s).copied().unwrap_or_default();
                 println!(
@@ -693,12 +703,18 @@ pub fn data_run(args: DataArgs, ctx: &Context) -> anyhow::Result<()> {
                 None => {}
             }
             st("time per drape (1 thread)", &i.seconds, 1.0, " s");
-            st(
-                "test pose to nearest train",
-                &i.test_to_train_pose_deg,
-                1.0,
-                " deg",
-            );
+            if ds.count(Split::Test) > 0 && ds.count(Split::Train) > 0 {
+                st(
+                    "test pose to nearest train",
+                    &i.test_to_train_pose_deg,
+                    1.0,
+                    " deg",
+                );
+            } else {
+                println!(
+                    "  test pose to nearest train  not measured: no test or no training drapes"
+                );
+            }
             for (split, d) in &i.dqs_edist_cm {
                 st(
                     &format!("DQS warp to drape, {}", split.name()),
