@@ -88,6 +88,27 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
     );
 
+    // While another process trains in the folder (it holds the folder's lock), a second
+    // `drape train` into it is refused and changes nothing; once the lock ends, it runs.
+    {
+        let lock = std::fs::File::options()
+            .write(true)
+            .open(run_dir.join(".train.lock"))
+            .expect("the run's lock file");
+        lock.try_lock().expect("free once the run ended");
+        let (ok, text) = train(&cfg, &data, &run_dir, &[]);
+        assert!(
+            !ok && text.contains("another drape train is writing"),
+            "{text}"
+        );
+    }
+    let (ok, text) = train(&cfg, &data, &run_dir, &[]);
+    assert!(ok, "{text}");
+    assert_eq!(
+        steps_before,
+        std::fs::read_to_string(run_dir.join("steps.csv")).unwrap()
+    );
+
     // Another length into the same folder is refused, naming the run's; given with
     // --epochs, the config is the run's and the finished run stays as it is. The
     // wall-clock cap is per invocation and may change.

@@ -84,9 +84,21 @@ pub fn check_faces(run: &Path, info: &RunInfo, faces: &str) -> Result<(), LearnE
     }
 }
 
+/// The lock file a training process holds in its run folder ([`prepare_folder`]).
+pub const LOCK_FILE: &str = ".train.lock";
+
 /// Creates the run folder with `config.toml` and `run.json`, or checks that an existing
-/// one was made by the same config on the same dataset (resume).
-pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Result<(), LearnError> {
+/// one was made by the same config on the same dataset (resume). Returns the folder's lock
+/// ([`LOCK_FILE`], held until the returned file is dropped): a second `drape train` into a
+/// folder that another process trains in is refused, as the two would write the same
+/// checkpoints and logs. An operating-system lock ends with its process, however it ends,
+/// so none is ever left stale; on a file system that cannot lock, training goes on without
+/// the guard and says so.
+pub fn prepare_folder(
+    run: &Path,
+    config: &TrainConfig,
+    info: &RunInfo,
+) -> Result<File, LearnError> {
     if run.join("manifest.json").exists() {
         return Err(LearnError::Mismatch(format!(
             "{} is a dataset folder; give the run a folder of its own (-o)",
@@ -94,6 +106,26 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
         )));
     }
     std::fs::create_dir_all(run).map_err(io(run))?;
+    let lp = run.join(LOCK_FILE);
+    let lock = File::options()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lp)
+        .map_err(io(&lp))?;
+    match lock.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            return Err(LearnError::Mismatch(format!(
+                "another drape train is writing {}; wait for it to finish or stop it (its lock ends with its process)",
+                run.display()
+            )));
+        }
+        Err(std::fs::TryLockError::Error(e)) => eprintln!(
+            "note: {} cannot be locked ({e}): nothing stops a second drape train from writing this run at once",
+            lp.display()
+        ),
+    }
     let cp = run.join("config.toml");
     let text = toml::to_string(config).expect("serialisable config");
     match std::fs::read_to_string(&cp) {
@@ -222,7 +254,8 @@ pub fn prepare_folder(run: &Path, config: &TrainConfig, info: &RunInfo) -> Resul
         }
         Some(_) => Ok(()),
         None => write_files(&[(&ip, &json(info))]),
-    }
+    }?;
+    Ok(lock)
 }
 
 /// Checks that the run `init` can start a run of network `want` on data `info`: the same

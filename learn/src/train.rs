@@ -744,7 +744,7 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
     if let Some(init) = init {
         crate::run::check_init(&config.model, init, &info)?;
     }
-    crate::run::prepare_folder(&opts.run, config, &info)?;
+    let _lock = crate::run::prepare_folder(&opts.run, config, &info)?;
     let mut state = State::load(&opts.run)?.unwrap_or_default();
     if state.finished {
         return Ok(state);
