@@ -400,9 +400,154 @@ pub fn progress(show: bool, len: u64) -> ProgressBar {
     bar
 }
 
+/// A bar's state as plain lines, for logs. indicatif draws nothing when standard error is
+/// not a terminal (a log file, `nohup`, CI), so a long job would show nothing until it ends;
+/// then `tick` writes the bar's position, message, rate and remaining time to standard
+/// error at most once every `every`, and `finish` writes a last line.
+#[derive(Debug)]
+pub struct LogLines {
+    what: String,
+    unit: String,
+    every: std::time::Duration,
+    start: std::time::Instant,
+    last: std::sync::Mutex<std::time::Instant>,
+    on: bool,
+}
+
+impl LogLines {
+    /// Lines for `bar` when it draws nothing; `what` names the work ("gen"), `unit` counts it
+    /// ("drapes").
+    pub fn new(bar: &ProgressBar, what: &str, unit: &str, every: std::time::Duration) -> Self {
+        Self::when(bar.is_hidden(), what, unit, every)
+    }
+
+    /// Lines if `on`, whatever the bar does (for bars drawn to a hidden target at first).
+    pub fn when(on: bool, what: &str, unit: &str, every: std::time::Duration) -> Self {
+        let now = std::time::Instant::now();
+        Self {
+            what: what.to_string(),
+            unit: unit.to_string(),
+            every,
+            start: now,
+            last: std::sync::Mutex::new(now),
+            on,
+        }
+    }
+
+    /// Whether a line is due (and, if so, counts it as written).
+    fn due(&self) -> bool {
+        if !self.on {
+            return false;
+        }
+        let now = std::time::Instant::now();
+        let mut last = self.last.lock().unwrap_or_else(|e| e.into_inner());
+        if now.duration_since(*last) >= self.every {
+            *last = now;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// After the bar moved: a line if one is due.
+    pub fn tick(&self, bar: &ProgressBar) {
+        if self.due() {
+            eprintln!("{}", self.line(bar));
+        }
+    }
+
+    /// A last line, whether due or not.
+    pub fn finish(&self, bar: &ProgressBar) {
+        if self.on {
+            eprintln!("{}", self.line(bar));
+        }
+    }
+
+    fn line(&self, bar: &ProgressBar) -> String {
+        log_line(
+            &self.what,
+            &self.unit,
+            bar.position(),
+            bar.length().unwrap_or(0),
+            &bar.message(),
+            self.start.elapsed().as_secs_f64(),
+        )
+    }
+}
+
+/// `gen: 500/2483 drapes (20%), 0 failed, 10m 0s, 0.83 drapes/s, about 39m 40s to go`.
+pub fn log_line(what: &str, unit: &str, pos: u64, len: u64, msg: &str, seconds: f64) -> String {
+    let mut s = format!("{what}: {pos}/{len} {unit}");
+    if len > 0 {
+        s.push_str(&format!(" ({:.0}%)", 100.0 * pos as f64 / len as f64));
+    }
+    if !msg.is_empty() {
+        s.push_str(&format!(", {msg}"));
+    }
+    s.push_str(&format!(", {}", clock(seconds)));
+    if pos > 0 && seconds > 0.0 {
+        let rate = pos as f64 / seconds;
+        s.push_str(&format!(", {rate:.2} {unit}/s"));
+        if pos < len {
+            s.push_str(&format!(
+                ", about {} to go",
+                clock((len - pos) as f64 / rate)
+            ));
+        }
+    }
+    s
+}
+
+/// Seconds as `1h 2m`, `3m 4s` or `5s`.
+fn clock(seconds: f64) -> String {
+    let t = seconds.max(0.0).round() as u64;
+    if t >= 3600 {
+        format!("{}h {}m", t / 3600, t % 3600 / 60)
+    } else if t >= 60 {
+        format!("{}m {}s", t / 60, t % 60)
+    } else {
+        format!("{t}s")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The log line states position, share, message, elapsed time, rate and what is left,
+    /// and leaves out the rate and the rest where they cannot be known.
+    #[test]
+    fn log_lines_read_as_the_bar() {
+        assert_eq!(
+            log_line("gen", "drapes", 500, 2000, "3 failed", 600.0),
+            "gen: 500/2000 drapes (25%), 3 failed, 10m 0s, 0.83 drapes/s, about 30m 0s to go"
+        );
+        assert_eq!(
+            log_line("check", "drapes", 0, 50, "", 2.4),
+            "check: 0/50 drapes (0%), 2s"
+        );
+        assert_eq!(
+            log_line("gen", "drapes", 40, 40, "", 7300.0),
+            "gen: 40/40 drapes (100%), 2h 1m, 0.01 drapes/s"
+        );
+    }
+
+    /// Lines are written only when asked for, and no more often than `every`.
+    #[test]
+    fn log_lines_are_rationed() {
+        let off = LogLines::when(false, "gen", "drapes", std::time::Duration::ZERO);
+        assert!(!off.due());
+        let always = LogLines::when(true, "gen", "drapes", std::time::Duration::ZERO);
+        assert!(always.due() && always.due());
+        let hourly = LogLines::when(true, "gen", "drapes", std::time::Duration::from_secs(3600));
+        assert!(
+            !hourly.due(),
+            "the first line is due an hour after the start"
+        );
+        // A bar drawn nowhere (as on a log file) asks for lines.
+        let bar = ProgressBar::hidden();
+        assert!(LogLines::new(&bar, "gen", "drapes", std::time::Duration::ZERO).due());
+    }
 
     /// A log with rows past the checkpoint: they are dropped before appending, the rest
     /// and the header stay; a log with nothing to drop is left as it is.

@@ -206,6 +206,13 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
     let stderr_bar = !bar.is_hidden();
     bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     bar.set_prefix("gen");
+    // Without a terminal (a log file), a line a minute instead of the bar.
+    let lines = learn::run::LogLines::when(
+        !stderr_bar,
+        "gen",
+        "drapes",
+        std::time::Duration::from_secs(60),
+    );
     let failed = AtomicUsize::new(0);
     let progress = |e: Event| match e {
         Event::Start { todo, done } => {
@@ -226,6 +233,7 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
             }
             bar.set_message(format!("{} failed", failed.load(Ordering::Relaxed)));
             bar.inc(1);
+            lines.tick(&bar);
         }
     };
     let opts = GenOptions {
@@ -245,6 +253,7 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
     })?;
     bar.finish();
     learn::run::end_bar_line(&bar);
+    lines.finish(&bar);
     let m = &summary.manifest;
     let t = m.tally();
     println!(

@@ -820,6 +820,9 @@ fn check(
         .progress_chars("=> "),
     );
     bar.set_prefix("check");
+    // Without a terminal (a log file), a line a minute instead of the bar.
+    let lines =
+        learn::run::LogLines::new(&bar, "check", "drapes", std::time::Duration::from_secs(60));
     let t0 = std::time::Instant::now();
     // Each row, and (but for warps only) every edge's strain in that drape.
     let rows: Vec<anyhow::Result<(serde_json::Value, Vec<f32>)>> = cases
@@ -837,6 +840,7 @@ fn check(
                     sim::cloth::BodyCollider::new(&posed.vertices, &model.triangles, 0.0);
                 let inside = eval::metrics::interpenetration(&collider, &warp);
                 bar.inc(1);
+                lines.tick(&bar);
                 return Ok((
                     serde_json::json!({
                         "case": label,
@@ -871,6 +875,7 @@ fn check(
                 *by_bone.entry(through_bone(&model, e)).or_default() += 1;
             }
             bar.inc(1);
+            lines.tick(&bar);
             let r = &d.report;
             let strains = sim::cloth::drape::edge_strain_values(cloth, &d.positions);
             Ok((
@@ -906,6 +911,7 @@ fn check(
         })
         .collect();
     bar.finish_and_clear();
+    lines.finish(&bar);
     let (rows, strains): (Vec<serde_json::Value>, Vec<Vec<f32>>) = rows
         .into_iter()
         .collect::<Result<Vec<_>, _>>()?
