@@ -153,3 +153,252 @@ where
         Err(_) => Err(format!("{s:?} is not a whole number")),
     }
 }
+
+#[cfg(test)]
+mod doc_commands {
+    //! Every `drape` command written out in the docs (README.md, ARCHITECTURE.md, docs/**/*.md
+    //! in fenced blocks, docs/**/*.txt and scripts/*.sh line by line) parses with today's
+    //! command line, so a renamed option or a new required argument cannot leave a
+    //! documented command broken.
+
+    use super::Cli;
+    use clap::Parser;
+    use std::path::{Path, PathBuf};
+
+    /// Splits a shell line into words: single and double quotes group, a backslash escapes
+    /// the next character outside single quotes.
+    fn words(line: &str) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut cur = String::new();
+        let mut started = false;
+        let mut quote: Option<char> = None;
+        let mut chars = line.chars();
+        while let Some(c) = chars.next() {
+            match (quote, c) {
+                (Some(q), c) if c == q => quote = None,
+                (Some('\''), c) => cur.push(c),
+                (_, '\\') => {
+                    if let Some(n) = chars.next() {
+                        cur.push(n);
+                        started = true;
+                    }
+                }
+                (None, '\'' | '"') => {
+                    quote = Some(c);
+                    started = true;
+                }
+                (None, c) if c.is_whitespace() => {
+                    if started {
+                        out.push(std::mem::take(&mut cur));
+                        started = false;
+                    }
+                }
+                (_, c) => {
+                    cur.push(c);
+                    started = true;
+                }
+            }
+        }
+        if started {
+            out.push(cur);
+        }
+        out
+    }
+
+    /// The program's arguments if `line` runs drape (`drape`, `target/release/drape`, a
+    /// copy named `drape-*`, `$drape`, `cargo run --release --`), after any `VAR=value` prefixes and
+    /// before any pipe, redirection, `&&` or comment. `None` for other lines and for usage
+    /// synopses (`[--opt N]`, `a | b`, `...`).
+    fn drape_args(line: &str) -> Option<Vec<String>> {
+        let mut line = line.trim();
+        for cut in [" #", " | ", " > ", " >> ", " 2>", " &&", " ;", " &"] {
+            if let Some(i) = line.find(cut) {
+                line = &line[..i];
+            }
+        }
+        if line.contains('[') || line.contains("...") || line.contains('<') {
+            return None;
+        }
+        // A word that is only a shell variable stands for a value the docs cannot know.
+        let w: Vec<String> = words(line)
+            .into_iter()
+            .map(|w| match w.as_str() {
+                "$drape" | "${drape}" => "drape".to_string(), // scripts/render-docs.sh
+                _ if is_variable(&w) => "1".to_string(),
+                _ => w,
+            })
+            .collect();
+        let mut i = 0;
+        while i < w.len() && is_assignment(&w[i]) {
+            i += 1;
+        }
+        if i < w.len() && (w[i] == "nice" || w[i] == "time") {
+            i += 1;
+            if i + 1 < w.len() && w[i] == "-n" {
+                i += 2;
+            }
+        }
+        let first = w.get(i)?;
+        let name = first.rsplit('/').next().unwrap_or(first);
+        if name == "drape" || name.starts_with("drape-") {
+            return Some(w[i + 1..].to_vec());
+        }
+        let cargo: Vec<&str> = w[i..].iter().map(String::as_str).collect();
+        if let Some(k) = cargo.iter().position(|s| *s == "--")
+            && cargo.first() == Some(&"cargo")
+            && cargo.get(1) == Some(&"run")
+            && !cargo[..k]
+                .iter()
+                .any(|s| matches!(*s, "-p" | "--package" | "--example" | "--bin"))
+        {
+            return Some(w[i + k + 1..].to_vec());
+        }
+        None
+    }
+
+    fn is_name(k: &str) -> bool {
+        k.chars()
+            .next()
+            .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+            && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+    }
+
+    fn is_assignment(w: &str) -> bool {
+        w.split_once('=').is_some_and(|(k, _)| is_name(k))
+    }
+
+    /// `$X` or `${X}`.
+    fn is_variable(w: &str) -> bool {
+        w.strip_prefix('$').is_some_and(|v| {
+            is_name(
+                v.strip_prefix('{')
+                    .and_then(|v| v.strip_suffix('}'))
+                    .unwrap_or(v),
+            )
+        })
+    }
+
+    /// Lines of `text` that are commands: joined across trailing backslashes; in Markdown
+    /// only those inside fenced blocks.
+    fn command_lines(text: &str, markdown: bool) -> Vec<(usize, String)> {
+        let mut out = Vec::new();
+        let mut fenced = false;
+        let mut pending: Option<(usize, String)> = None;
+        for (n, raw) in text.lines().enumerate() {
+            let t = raw.trim();
+            if markdown && t.starts_with("```") {
+                fenced = !fenced;
+                continue;
+            }
+            if markdown && !fenced {
+                continue;
+            }
+            let (start, mut joined) = pending.take().unwrap_or((n + 1, String::new()));
+            if let Some(head) = t.strip_suffix('\\') {
+                joined.push_str(head.trim_end());
+                joined.push(' ');
+                pending = Some((start, joined));
+                continue;
+            }
+            joined.push_str(t);
+            out.push((start, joined));
+        }
+        out
+    }
+
+    fn files(root: &Path) -> Vec<PathBuf> {
+        fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                return;
+            };
+            for e in entries.flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    walk(&p, out);
+                } else if matches!(
+                    p.extension().and_then(|e| e.to_str()),
+                    Some("md" | "txt" | "sh")
+                ) {
+                    out.push(p);
+                }
+            }
+        }
+        let mut out = vec![root.join("README.md"), root.join("ARCHITECTURE.md")];
+        walk(&root.join("docs"), &mut out);
+        walk(&root.join("scripts"), &mut out);
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn the_shell_words_and_the_command_are_found() {
+        assert_eq!(
+            words(r#"a 'b c' "d e" f\ g"#),
+            ["a", "b c", "d e", "f g"].map(String::from)
+        );
+        let args = |l: &str| drape_args(l).map(|v| v.join(" "));
+        assert_eq!(
+            args("RAYON_NUM_THREADS=1 drape train c.toml -o r  # note").as_deref(),
+            Some("train c.toml -o r")
+        );
+        assert_eq!(
+            args("cargo run --release -- quickstart --seed 3 > log 2>&1").as_deref(),
+            Some("quickstart --seed 3")
+        );
+        assert_eq!(
+            args("nice -n 19 runs/bin/drape-x gen small -o d").as_deref(),
+            Some("gen small -o d")
+        );
+        assert_eq!(args("drape garment check NAME [--samples 50]"), None);
+        assert_eq!(args("cargo test --release"), None);
+        assert_eq!(
+            args("cargo run --release -p learn --example stages -- DIR"),
+            None
+        );
+        assert_eq!(args("drape=target/release/drape"), None);
+        assert_eq!(
+            args("  $drape body -o b.obj").as_deref(),
+            Some("body -o b.obj")
+        );
+        assert_eq!(
+            args(r#"drape gen c.toml -o "$D/x" --threads "$N""#).as_deref(),
+            Some("gen c.toml -o $D/x --threads 1")
+        );
+        let lines = command_lines("text drape x\n```sh\ndrape a \\\n  --b 1\n```\n", true);
+        assert_eq!(lines, vec![(3, "drape a --b 1".to_string())]);
+    }
+
+    #[test]
+    fn every_documented_command_parses() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut checked = 0;
+        let mut broken = Vec::new();
+        for path in files(root) {
+            let text = std::fs::read_to_string(&path).unwrap();
+            let markdown = path.extension().is_some_and(|e| e == "md");
+            for (n, line) in command_lines(&text, markdown) {
+                let Some(args) = drape_args(&line) else {
+                    continue;
+                };
+                checked += 1;
+                let argv = std::iter::once("drape".to_string()).chain(args);
+                if let Err(e) = Cli::try_parse_from(argv) {
+                    use clap::error::ErrorKind::*;
+                    if !matches!(e.kind(), DisplayHelp | DisplayVersion) {
+                        let first = e.to_string().lines().next().unwrap_or("").to_string();
+                        let rel = path.strip_prefix(root).unwrap_or(&path);
+                        broken.push(format!("{}:{n}: {line}\n    {first}", rel.display()));
+                    }
+                }
+            }
+        }
+        println!("{checked} documented commands checked");
+        assert!(checked > 100, "only {checked} documented commands found");
+        assert!(
+            broken.is_empty(),
+            "{} of {checked} documented commands do not parse:\n{}",
+            broken.len(),
+            broken.join("\n")
+        );
+    }
+}
