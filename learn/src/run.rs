@@ -409,8 +409,8 @@ pub struct LogLines {
     what: String,
     unit: String,
     every: std::time::Duration,
-    start: std::time::Instant,
-    last: std::sync::Mutex<std::time::Instant>,
+    /// When the work started and when the last line was written.
+    clock: std::sync::Mutex<(std::time::Instant, std::time::Instant)>,
     on: bool,
 }
 
@@ -428,10 +428,16 @@ impl LogLines {
             what: what.to_string(),
             unit: unit.to_string(),
             every,
-            start: now,
-            last: std::sync::Mutex::new(now),
+            clock: std::sync::Mutex::new((now, now)),
             on,
         }
+    }
+
+    /// Starts the clock again: the work itself begins now (after loading, say), so the
+    /// rate and the time to go leave out what came before.
+    pub fn restart(&self) {
+        let now = std::time::Instant::now();
+        *self.clock.lock().unwrap_or_else(|e| e.into_inner()) = (now, now);
     }
 
     /// Whether a line is due (and, if so, counts it as written).
@@ -440,9 +446,9 @@ impl LogLines {
             return false;
         }
         let now = std::time::Instant::now();
-        let mut last = self.last.lock().unwrap_or_else(|e| e.into_inner());
-        if now.duration_since(*last) >= self.every {
-            *last = now;
+        let mut clock = self.clock.lock().unwrap_or_else(|e| e.into_inner());
+        if now.duration_since(clock.1) >= self.every {
+            clock.1 = now;
             true
         } else {
             false
@@ -464,22 +470,25 @@ impl LogLines {
     }
 
     fn line(&self, bar: &ProgressBar) -> String {
+        let start = self.clock.lock().unwrap_or_else(|e| e.into_inner()).0;
         log_line(
             &self.what,
             &self.unit,
             bar.position(),
             bar.length().unwrap_or(0),
             &bar.message(),
-            self.start.elapsed().as_secs_f64(),
+            start.elapsed().as_secs_f64(),
         )
     }
 }
 
-/// `gen: 500/2483 drapes (20%), 0 failed, 10m 0s, 0.83 drapes/s, about 39m 40s to go`.
+/// `gen: 500/2483 drapes (20%), 0 failed, 10m 0s, 1.2 s each, about 39m 40s to go`; below
+/// one a second the rate is given as seconds each.  The share is rounded down, so 100% means
+/// done.
 pub fn log_line(what: &str, unit: &str, pos: u64, len: u64, msg: &str, seconds: f64) -> String {
     let mut s = format!("{what}: {pos}/{len} {unit}");
-    if len > 0 {
-        s.push_str(&format!(" ({:.0}%)", 100.0 * pos as f64 / len as f64));
+    if let Some(share) = (100 * pos).checked_div(len) {
+        s.push_str(&format!(" ({share}%)"));
     }
     if !msg.is_empty() {
         s.push_str(&format!(", {msg}"));
@@ -487,7 +496,11 @@ pub fn log_line(what: &str, unit: &str, pos: u64, len: u64, msg: &str, seconds: 
     s.push_str(&format!(", {}", clock(seconds)));
     if pos > 0 && seconds > 0.0 {
         let rate = pos as f64 / seconds;
-        s.push_str(&format!(", {rate:.2} {unit}/s"));
+        if rate >= 1.0 {
+            s.push_str(&format!(", {rate:.1} {unit}/s"));
+        } else {
+            s.push_str(&format!(", {:.1} s each", 1.0 / rate));
+        }
         if pos < len {
             s.push_str(&format!(
                 ", about {} to go",
@@ -520,7 +533,11 @@ mod tests {
     fn log_lines_read_as_the_bar() {
         assert_eq!(
             log_line("gen", "drapes", 500, 2000, "3 failed", 600.0),
-            "gen: 500/2000 drapes (25%), 3 failed, 10m 0s, 0.83 drapes/s, about 30m 0s to go"
+            "gen: 500/2000 drapes (25%), 3 failed, 10m 0s, 1.2 s each, about 30m 0s to go"
+        );
+        assert_eq!(
+            log_line("gen", "drapes", 1990, 2000, "", 100.0),
+            "gen: 1990/2000 drapes (99%), 1m 40s, 19.9 drapes/s, about 1s to go"
         );
         assert_eq!(
             log_line("check", "drapes", 0, 50, "", 2.4),
@@ -528,7 +545,7 @@ mod tests {
         );
         assert_eq!(
             log_line("gen", "drapes", 40, 40, "", 7300.0),
-            "gen: 40/40 drapes (100%), 2h 1m, 0.01 drapes/s"
+            "gen: 40/40 drapes (100%), 2h 1m, 182.5 s each"
         );
     }
 
@@ -547,6 +564,10 @@ mod tests {
         // A bar drawn nowhere (as on a log file) asks for lines.
         let bar = ProgressBar::hidden();
         assert!(LogLines::new(&bar, "gen", "drapes", std::time::Duration::ZERO).due());
+        // A restart counts as a line written: the next is due `every` later.
+        let minutely = LogLines::when(true, "gen", "drapes", std::time::Duration::from_secs(60));
+        minutely.restart();
+        assert!(!minutely.due());
     }
 
     /// A log with rows past the checkpoint: they are dropped before appending, the rest

@@ -221,10 +221,14 @@ pub fn gen_run(args: GenArgs, ctx: &Context) -> anyhow::Result<()> {
             if stderr_bar {
                 bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
             }
+            lines.restart();
             if done > 0 {
-                bar.println(format!(
-                    "resuming: {done} drapes already done, {todo} to go"
-                ));
+                let note = format!("resuming: {done} drapes already done, {todo} to go");
+                if stderr_bar {
+                    bar.println(note);
+                } else {
+                    eprintln!("{note}");
+                }
             }
         }
         Event::Drape { ok } => {

@@ -157,20 +157,23 @@ where
 #[cfg(test)]
 mod doc_commands {
     //! Every `drape` command written out in the docs (README.md, ARCHITECTURE.md, docs/**/*.md
-    //! in fenced blocks, docs/**/*.txt and scripts/*.sh line by line) parses with today's
-    //! command line, so a renamed option or a new required argument cannot leave a
-    //! documented command broken.
+    //! in fenced shell blocks, docs/**/*.txt and scripts/*.sh line by line) parses with
+    //! today's command line, and every usage synopsis names a subcommand and options that
+    //! exist, so a renamed option or a new required argument cannot leave a documented
+    //! command broken. Commands in running prose (inline code) are not checked: many name
+    //! an option alone (`drape sim --strain-png`).
 
     use super::Cli;
     use clap::Parser;
     use std::path::{Path, PathBuf};
 
-    /// Splits a shell line into words: single and double quotes group, a backslash escapes
-    /// the next character outside single quotes.
-    fn words(line: &str) -> Vec<String> {
+    /// Splits a shell line into words, each with whether any of it was quoted: single and
+    /// double quotes group, a backslash escapes the next character outside single quotes.
+    fn tokens(line: &str) -> Vec<(String, bool)> {
         let mut out = Vec::new();
         let mut cur = String::new();
         let mut started = false;
+        let mut quoted = false;
         let mut quote: Option<char> = None;
         let mut chars = line.chars();
         while let Some(c) = chars.next() {
@@ -181,16 +184,19 @@ mod doc_commands {
                     if let Some(n) = chars.next() {
                         cur.push(n);
                         started = true;
+                        quoted = true;
                     }
                 }
                 (None, '\'' | '"') => {
                     quote = Some(c);
                     started = true;
+                    quoted = true;
                 }
                 (None, c) if c.is_whitespace() => {
                     if started {
-                        out.push(std::mem::take(&mut cur));
+                        out.push((std::mem::take(&mut cur), quoted));
                         started = false;
+                        quoted = false;
                     }
                 }
                 (_, c) => {
@@ -200,42 +206,154 @@ mod doc_commands {
             }
         }
         if started {
-            out.push(cur);
+            out.push((cur, quoted));
         }
         out
     }
 
-    /// The program's arguments if `line` runs drape (`drape`, `target/release/drape`, a
-    /// copy named `drape-*`, `$drape`, `cargo run --release --`), after any `VAR=value` prefixes and
-    /// before any pipe, redirection, `&&` or comment. `None` for other lines and for usage
-    /// synopses (`[--opt N]`, `a | b`, `...`).
-    fn drape_args(line: &str) -> Option<Vec<String>> {
-        let mut line = line.trim();
-        for cut in [" #", " | ", " > ", " >> ", " 2>", " &&", " ;", " &"] {
-            if let Some(i) = line.find(cut) {
-                line = &line[..i];
+    #[cfg(test)]
+    fn words(line: &str) -> Vec<String> {
+        tokens(line).into_iter().map(|(w, _)| w).collect()
+    }
+
+    /// The program's arguments for each command of `line` that runs drape (`drape`,
+    /// `target/release/drape`, a copy named `drape-*`, `$drape`, `cargo run --release --`),
+    /// after any `VAR=value` prefixes and wrappers (`nice`, `time`, `nohup`, `env`), without
+    /// redirections and comments. Commands joined by `&&`, `||`, `;`, `|` or `&` are taken
+    /// one by one; usage synopses (`[--opt N]`, `...`, `<DIR>`) are left out.
+    fn drape_commands(line: &str) -> Vec<Vec<String>> {
+        let mut segments = vec![Vec::new()];
+        let mut skip_next = false;
+        for (w, quoted) in tokens(line) {
+            if skip_next {
+                skip_next = false;
+                continue;
             }
+            if !quoted {
+                if w.starts_with('#') {
+                    break;
+                }
+                if matches!(w.as_str(), "&&" | "||" | ";" | "|" | "&") {
+                    segments.push(Vec::new());
+                    continue;
+                }
+                if matches!(w.as_str(), ">" | ">>" | "2>" | "2>>" | "&>" | "<") {
+                    skip_next = true;
+                    continue;
+                }
+                if w.starts_with('>') || w.starts_with("2>") || w.starts_with("&>") {
+                    continue;
+                }
+                if let Some(head) = w.strip_suffix(';') {
+                    let last = segments.last_mut().expect("one segment at least");
+                    last.push((head.to_string(), quoted));
+                    segments.push(Vec::new());
+                    continue;
+                }
+            }
+            segments
+                .last_mut()
+                .expect("one segment at least")
+                .push((w, quoted));
         }
-        if line.contains('[') || line.contains("...") || line.contains('<') {
+        segments.into_iter().filter_map(drape_args).collect()
+    }
+
+    /// Whether the unquoted words read as a usage synopsis (`[--opt N]`, `DIR...`, `<DIR>`).
+    fn is_synopsis(words: &[(String, bool)]) -> bool {
+        words
+            .iter()
+            .any(|(w, q)| !q && (w.contains('[') || w.contains("...") || w.starts_with('<')))
+    }
+
+    fn drape_args(segment: Vec<(String, bool)>) -> Option<Vec<String>> {
+        if is_synopsis(&segment) {
             return None;
         }
-        // A word that is only a shell variable stands for a value the docs cannot know.
-        let w: Vec<String> = words(line)
+        program_args(segment)
+    }
+
+    /// The program's arguments of a usage synopsis line (`drape gen CONFIG -o DIR [--shard
+    /// I/N]`), up to a comment; `None` for other lines.
+    fn synopsis(line: &str) -> Option<Vec<String>> {
+        let words: Vec<(String, bool)> = tokens(line)
             .into_iter()
-            .map(|w| match w.as_str() {
+            .take_while(|(w, q)| *q || !w.starts_with('#'))
+            .collect();
+        if !is_synopsis(&words) {
+            return None;
+        }
+        program_args(words)
+    }
+
+    /// The subcommand a synopsis names and the options it writes (`--seed`, `-o`, each side
+    /// of `--a|--b`), each checked against the command line. Errors name what is unknown.
+    fn check_synopsis(args: &[String]) -> Result<(), String> {
+        use clap::CommandFactory;
+        let root = Cli::command();
+        let mut cmd = &root;
+        let mut path = vec!["drape".to_string()];
+        let mut rest = args;
+        while let Some((first, tail)) = rest.split_first() {
+            match cmd.find_subcommand(first) {
+                Some(sub) => {
+                    cmd = sub;
+                    path.push(first.clone());
+                    rest = tail;
+                }
+                None => break,
+            }
+        }
+        let known = |c: &clap::Command, opt: &str| {
+            c.get_arguments().any(|a| match opt.strip_prefix("--") {
+                Some(long) => a.get_long() == Some(long),
+                None => opt.chars().nth(1).is_some_and(|s| a.get_short() == Some(s)),
+            })
+        };
+        for word in rest {
+            for piece in word.split('|') {
+                let piece = piece.trim_start_matches(['[', '(']);
+                let piece = piece.trim_end_matches([']', ')', ',']);
+                let piece = piece.split('=').next().unwrap_or(piece);
+                let is_option = piece.starts_with("--") && piece.len() > 2
+                    || piece.len() == 2
+                        && piece.starts_with('-')
+                        && piece[1..].chars().all(|c| c.is_ascii_alphabetic());
+                if !is_option || matches!(piece, "--help" | "-h" | "--version" | "-V") {
+                    continue;
+                }
+                if !known(cmd, piece) && !known(&root, piece) {
+                    return Err(format!("`{}` has no option {piece}", path.join(" ")));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn program_args(segment: Vec<(String, bool)>) -> Option<Vec<String>> {
+        // A word that is only a shell variable stands for a value the docs cannot know.
+        let w: Vec<String> = segment
+            .into_iter()
+            .map(|(w, _)| match w.as_str() {
                 "$drape" | "${drape}" => "drape".to_string(), // scripts/render-docs.sh
                 _ if is_variable(&w) => "1".to_string(),
                 _ => w,
             })
             .collect();
         let mut i = 0;
-        while i < w.len() && is_assignment(&w[i]) {
-            i += 1;
-        }
-        if i < w.len() && (w[i] == "nice" || w[i] == "time") {
-            i += 1;
-            if i + 1 < w.len() && w[i] == "-n" {
-                i += 2;
+        loop {
+            while i < w.len() && is_assignment(&w[i]) {
+                i += 1;
+            }
+            match w.get(i).map(String::as_str) {
+                Some("time" | "nohup" | "env") => i += 1,
+                Some("nice") => {
+                    i += 1;
+                    if w.get(i).is_some_and(|s| s == "-n") {
+                        i += 2;
+                    }
+                }
+                _ => break,
             }
         }
         let first = w.get(i)?;
@@ -249,7 +367,11 @@ mod doc_commands {
             && cargo.get(1) == Some(&"run")
             && !cargo[..k]
                 .iter()
-                .any(|s| matches!(*s, "-p" | "--package" | "--example" | "--bin"))
+                .any(|s| matches!(*s, "-p" | "--package" | "--example"))
+            && cargo[..k]
+                .iter()
+                .position(|s| *s == "--bin")
+                .is_none_or(|b| cargo.get(b + 1) == Some(&"drape"))
         {
             return Some(w[i + k + 1..].to_vec());
         }
@@ -279,18 +401,21 @@ mod doc_commands {
     }
 
     /// Lines of `text` that are commands: joined across trailing backslashes; in Markdown
-    /// only those inside fenced blocks.
+    /// only those inside fenced shell blocks (```sh, bash, shell, console).
     fn command_lines(text: &str, markdown: bool) -> Vec<(usize, String)> {
         let mut out = Vec::new();
         let mut fenced = false;
+        let mut shell = false;
         let mut pending: Option<(usize, String)> = None;
         for (n, raw) in text.lines().enumerate() {
             let t = raw.trim();
-            if markdown && t.starts_with("```") {
+            if markdown && let Some(tag) = t.strip_prefix("```") {
                 fenced = !fenced;
+                shell = fenced && matches!(tag.trim(), "sh" | "bash" | "shell" | "console");
+                pending = None;
                 continue;
             }
-            if markdown && !fenced {
+            if markdown && !shell {
                 continue;
             }
             let (start, mut joined) = pending.take().unwrap_or((n + 1, String::new()));
@@ -336,7 +461,11 @@ mod doc_commands {
             words(r#"a 'b c' "d e" f\ g"#),
             ["a", "b c", "d e", "f g"].map(String::from)
         );
-        let args = |l: &str| drape_args(l).map(|v| v.join(" "));
+        let args = |l: &str| {
+            let c = drape_commands(l);
+            assert!(c.len() <= 1, "{l}: {c:?}");
+            c.first().map(|v| v.join(" "))
+        };
         assert_eq!(
             args("RAYON_NUM_THREADS=1 drape train c.toml -o r  # note").as_deref(),
             Some("train c.toml -o r")
@@ -350,6 +479,21 @@ mod doc_commands {
             Some("gen small -o d")
         );
         assert_eq!(args("drape garment check NAME [--samples 50]"), None);
+        let syn = |l: &str| check_synopsis(&synopsis(l).expect("a synopsis"));
+        assert_eq!(
+            syn("drape garment check NAME [--samples 50 [--seed 0] | --corners] # note"),
+            Ok(())
+        );
+        assert_eq!(syn("drape data merge DIR... -o OUT [--assets A]"), Ok(()));
+        assert_eq!(
+            syn("drape garment check NAME [--sample 50]"),
+            Err("`drape garment check` has no option --sample".to_string())
+        );
+        assert_eq!(
+            syn("drape warp [--pose SPEC|-q]"),
+            Err("`drape warp` has no option -q".to_string())
+        );
+        assert_eq!(synopsis("drape warp --garment jeans -o w.obj"), None);
         assert_eq!(args("cargo test --release"), None);
         assert_eq!(
             args("cargo run --release -p learn --example stages -- DIR"),
@@ -364,7 +508,26 @@ mod doc_commands {
             args(r#"drape gen c.toml -o "$D/x" --threads "$N""#).as_deref(),
             Some("gen c.toml -o $D/x --threads 1")
         );
-        let lines = command_lines("text drape x\n```sh\ndrape a \\\n  --b 1\n```\n", true);
+        assert_eq!(
+            args(r#"drape sim -o "a | b.obj" --png '#1.png'"#).as_deref(),
+            Some("sim -o a | b.obj --png #1.png")
+        );
+        assert_eq!(
+            args("cargo run --release --bin drape -- body -o b.obj").as_deref(),
+            Some("body -o b.obj")
+        );
+        assert_eq!(
+            args("nohup env X=1 nice -n 19 drape gen c -o d").as_deref(),
+            Some("gen c -o d")
+        );
+        assert_eq!(
+            drape_commands("drape a -o x && RAYON_NUM_THREADS=1 drape b 2>&1 | tee log; drape c"),
+            [vec!["a", "-o", "x"], vec!["b"], vec!["c"]]
+        );
+        let lines = command_lines(
+            "text drape x\n```sh\ndrape a \\\n  --b 1\n```\n```\ndrape out\n```\n",
+            true,
+        );
         assert_eq!(lines, vec![(3, "drape a --b 1".to_string())]);
     }
 
@@ -372,31 +535,39 @@ mod doc_commands {
     fn every_documented_command_parses() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let mut checked = 0;
+        let mut synopses = 0;
         let mut broken = Vec::new();
         for path in files(root) {
             let text = std::fs::read_to_string(&path).unwrap();
             let markdown = path.extension().is_some_and(|e| e == "md");
             for (n, line) in command_lines(&text, markdown) {
-                let Some(args) = drape_args(&line) else {
-                    continue;
-                };
-                checked += 1;
-                let argv = std::iter::once("drape".to_string()).chain(args);
-                if let Err(e) = Cli::try_parse_from(argv) {
-                    use clap::error::ErrorKind::*;
-                    if !matches!(e.kind(), DisplayHelp | DisplayVersion) {
-                        let first = e.to_string().lines().next().unwrap_or("").to_string();
+                if let Some(args) = synopsis(&line) {
+                    synopses += 1;
+                    if let Err(e) = check_synopsis(&args) {
                         let rel = path.strip_prefix(root).unwrap_or(&path);
-                        broken.push(format!("{}:{n}: {line}\n    {first}", rel.display()));
+                        broken.push(format!("{}:{n}: {line}\n    {e}", rel.display()));
+                    }
+                }
+                for args in drape_commands(&line) {
+                    checked += 1;
+                    let argv = std::iter::once("drape".to_string()).chain(args);
+                    if let Err(e) = Cli::try_parse_from(argv) {
+                        use clap::error::ErrorKind::*;
+                        if !matches!(e.kind(), DisplayHelp | DisplayVersion) {
+                            let first = e.to_string().lines().next().unwrap_or("").to_string();
+                            let rel = path.strip_prefix(root).unwrap_or(&path);
+                            broken.push(format!("{}:{n}: {line}\n    {first}", rel.display()));
+                        }
                     }
                 }
             }
         }
-        println!("{checked} documented commands checked");
+        println!("{checked} documented commands parsed, {synopses} usage synopses checked");
         assert!(checked > 100, "only {checked} documented commands found");
+        assert!(synopses > 20, "only {synopses} usage synopses found");
         assert!(
             broken.is_empty(),
-            "{} of {checked} documented commands do not parse:\n{}",
+            "{} of {checked} documented commands and {synopses} synopses do not parse:\n{}",
             broken.len(),
             broken.join("\n")
         );
