@@ -531,22 +531,24 @@ mod tests {
     /// and leaves out the rate and the rest where they cannot be known.
     #[test]
     fn log_lines_read_as_the_bar() {
-        assert_eq!(
-            log_line("gen", "drapes", 500, 2000, "3 failed", 600.0),
-            "gen: 500/2000 drapes (25%), 3 failed, 10m 0s, 1.2 s each, about 30m 0s to go"
-        );
-        assert_eq!(
-            log_line("gen", "drapes", 1990, 2000, "", 100.0),
-            "gen: 1990/2000 drapes (99%), 1m 40s, 19.9 drapes/s, about 1s to go"
-        );
-        assert_eq!(
-            log_line("check", "drapes", 0, 50, "", 2.4),
-            "check: 0/50 drapes (0%), 2s"
-        );
-        assert_eq!(
-            log_line("gen", "drapes", 40, 40, "", 7300.0),
-            "gen: 40/40 drapes (100%), 2h 1m, 182.5 s each"
-        );
+        let cases = [
+            (
+                ("gen", 500, 2000, "3 failed", 600.0),
+                "gen: 500/2000 drapes (25%), 3 failed, 10m 0s, 1.2 s each, about 30m 0s to go",
+            ),
+            (
+                ("gen", 1990, 2000, "", 100.0),
+                "gen: 1990/2000 drapes (99%), 1m 40s, 19.9 drapes/s, about 1s to go",
+            ),
+            (("check", 0, 50, "", 2.4), "check: 0/50 drapes (0%), 2s"),
+            (
+                ("gen", 40, 40, "", 7300.0),
+                "gen: 40/40 drapes (100%), 2h 1m, 182.5 s each",
+            ),
+        ];
+        for ((what, pos, len, msg, seconds), want) in cases {
+            assert_eq!(log_line(what, "drapes", pos, len, msg, seconds), want);
+        }
     }
 
     /// Lines are written only when asked for, and no more often than `every`.

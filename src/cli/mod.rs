@@ -466,19 +466,44 @@ mod doc_commands {
             assert!(c.len() <= 1, "{l}: {c:?}");
             c.first().map(|v| v.join(" "))
         };
-        assert_eq!(
-            args("RAYON_NUM_THREADS=1 drape train c.toml -o r  # note").as_deref(),
-            Some("train c.toml -o r")
-        );
-        assert_eq!(
-            args("cargo run --release -- quickstart --seed 3 > log 2>&1").as_deref(),
-            Some("quickstart --seed 3")
-        );
-        assert_eq!(
-            args("nice -n 19 runs/bin/drape-x gen small -o d").as_deref(),
-            Some("gen small -o d")
-        );
-        assert_eq!(args("drape garment check NAME [--samples 50]"), None);
+        let cases = [
+            (
+                "RAYON_NUM_THREADS=1 drape train c.toml -o r  # note",
+                Some("train c.toml -o r"),
+            ),
+            (
+                "cargo run --release -- quickstart --seed 3 > log 2>&1",
+                Some("quickstart --seed 3"),
+            ),
+            (
+                "nice -n 19 runs/bin/drape-x gen small -o d",
+                Some("gen small -o d"),
+            ),
+            ("drape garment check NAME [--samples 50]", None),
+            ("cargo test --release", None),
+            ("cargo run --release -p learn --example stages -- DIR", None),
+            ("drape=target/release/drape", None),
+            ("  $drape body -o b.obj", Some("body -o b.obj")),
+            (
+                r#"drape gen c.toml -o "$D/x" --threads "$N""#,
+                Some("gen c.toml -o $D/x --threads 1"),
+            ),
+            (
+                r#"drape sim -o "a | b.obj" --png '#1.png'"#,
+                Some("sim -o a | b.obj --png #1.png"),
+            ),
+            (
+                "cargo run --release --bin drape -- body -o b.obj",
+                Some("body -o b.obj"),
+            ),
+            (
+                "nohup env X=1 nice -n 19 drape gen c -o d",
+                Some("gen c -o d"),
+            ),
+        ];
+        for (line, want) in cases {
+            assert_eq!(args(line).as_deref(), want, "{line}");
+        }
         let syn = |l: &str| check_synopsis(&synopsis(l).expect("a synopsis"));
         assert_eq!(
             syn("drape garment check NAME [--samples 50 [--seed 0] | --corners] # note"),
@@ -494,32 +519,6 @@ mod doc_commands {
             Err("`drape warp` has no option -q".to_string())
         );
         assert_eq!(synopsis("drape warp --garment jeans -o w.obj"), None);
-        assert_eq!(args("cargo test --release"), None);
-        assert_eq!(
-            args("cargo run --release -p learn --example stages -- DIR"),
-            None
-        );
-        assert_eq!(args("drape=target/release/drape"), None);
-        assert_eq!(
-            args("  $drape body -o b.obj").as_deref(),
-            Some("body -o b.obj")
-        );
-        assert_eq!(
-            args(r#"drape gen c.toml -o "$D/x" --threads "$N""#).as_deref(),
-            Some("gen c.toml -o $D/x --threads 1")
-        );
-        assert_eq!(
-            args(r#"drape sim -o "a | b.obj" --png '#1.png'"#).as_deref(),
-            Some("sim -o a | b.obj --png #1.png")
-        );
-        assert_eq!(
-            args("cargo run --release --bin drape -- body -o b.obj").as_deref(),
-            Some("body -o b.obj")
-        );
-        assert_eq!(
-            args("nohup env X=1 nice -n 19 drape gen c -o d").as_deref(),
-            Some("gen c -o d")
-        );
         assert_eq!(
             drape_commands("drape a -o x && RAYON_NUM_THREADS=1 drape b 2>&1 | tee log; drape c"),
             [vec!["a", "-o", "x"], vec!["b"], vec!["c"]]
