@@ -158,10 +158,10 @@ where
 mod doc_commands {
     //! Every `drape` command written out in the docs (README.md, ARCHITECTURE.md, docs/**/*.md
     //! in fenced shell blocks, docs/**/*.txt and scripts/*.sh line by line) parses with
-    //! today's command line, and every usage synopsis names a subcommand and options that
-    //! exist, so a renamed option or a new required argument cannot leave a documented
-    //! command broken. Commands in running prose (inline code) are not checked: many name
-    //! an option alone (`drape sim --strain-png`).
+    //! today's command line, and every usage synopsis and every command in running prose
+    //! (inline code, often partial: `drape sim --strain-png`) names a subcommand and options
+    //! that exist, so a renamed option or a new required argument cannot leave a
+    //! documented command broken.
 
     use super::Cli;
     use clap::Parser;
@@ -211,7 +211,6 @@ mod doc_commands {
         out
     }
 
-    #[cfg(test)]
     fn words(line: &str) -> Vec<String> {
         tokens(line).into_iter().map(|(w, _)| w).collect()
     }
@@ -431,6 +430,43 @@ mod doc_commands {
         out
     }
 
+    /// Inline code spans of Markdown prose (outside fenced blocks) that start with `drape `,
+    /// with the line their paragraph starts on; a span may run over a line break.
+    fn inline_commands(text: &str) -> Vec<(usize, String)> {
+        let mut out = Vec::new();
+        let mut fenced = false;
+        let mut paragraph: Option<(usize, String)> = None;
+        let flush = |p: Option<(usize, String)>, out: &mut Vec<(usize, String)>| {
+            if let Some((n, text)) = p {
+                for (k, span) in text.split('`').enumerate() {
+                    if k % 2 == 1 && span.trim_start().starts_with("drape ") {
+                        out.push((n, span.trim().to_string()));
+                    }
+                }
+            }
+        };
+        for (n, raw) in text.lines().enumerate() {
+            let t = raw.trim();
+            if t.starts_with("```") {
+                fenced = !fenced;
+                flush(paragraph.take(), &mut out);
+                continue;
+            }
+            if fenced {
+                continue;
+            }
+            if t.is_empty() {
+                flush(paragraph.take(), &mut out);
+                continue;
+            }
+            let p = paragraph.get_or_insert_with(|| (n + 1, String::new()));
+            p.1.push(' ');
+            p.1.push_str(t);
+        }
+        flush(paragraph.take(), &mut out);
+        out
+    }
+
     fn files(root: &Path) -> Vec<PathBuf> {
         fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
             let Ok(entries) = std::fs::read_dir(dir) else {
@@ -519,6 +555,14 @@ mod doc_commands {
             Err("`drape warp` has no option -q".to_string())
         );
         assert_eq!(synopsis("drape warp --garment jeans -o w.obj"), None);
+        let prose = "See `drape sim\n--png p.png` and `cargo run`.\n\n```sh\n`drape x`\n```\nthen `drape warp`";
+        assert_eq!(
+            inline_commands(prose),
+            [
+                (1, "drape sim --png p.png".to_string()),
+                (7, "drape warp".to_string())
+            ]
+        );
         assert_eq!(
             drape_commands("drape a -o x && RAYON_NUM_THREADS=1 drape b 2>&1 | tee log; drape c"),
             [vec!["a", "-o", "x"], vec!["b"], vec!["c"]]
@@ -535,10 +579,26 @@ mod doc_commands {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let mut checked = 0;
         let mut synopses = 0;
+        let mut inline = 0;
         let mut broken = Vec::new();
         for path in files(root) {
             let text = std::fs::read_to_string(&path).unwrap();
             let markdown = path.extension().is_some_and(|e| e == "md");
+            // Commands in prose are often partial (`drape sim --strain-png`): their
+            // subcommand and option names are checked, as a synopsis's.
+            let prose = if markdown {
+                inline_commands(&text)
+            } else {
+                Vec::new()
+            };
+            for (n, span) in prose {
+                inline += 1;
+                let args: Vec<String> = words(&span).into_iter().skip(1).collect();
+                if let Err(e) = check_synopsis(&args) {
+                    let rel = path.strip_prefix(root).unwrap_or(&path);
+                    broken.push(format!("{}:{n}: `{span}`\n    {e}", rel.display()));
+                }
+            }
             for (n, line) in command_lines(&text, markdown) {
                 if let Some(args) = synopsis(&line) {
                     synopses += 1;
@@ -561,12 +621,16 @@ mod doc_commands {
                 }
             }
         }
-        println!("{checked} documented commands parsed, {synopses} usage synopses checked");
+        println!(
+            "{checked} documented commands parsed; {synopses} usage synopses and {inline} \
+             commands in prose checked for their subcommand and options"
+        );
         assert!(checked > 100, "only {checked} documented commands found");
         assert!(synopses > 20, "only {synopses} usage synopses found");
+        assert!(inline > 100, "only {inline} commands in prose found");
         assert!(
             broken.is_empty(),
-            "{} of {checked} documented commands and {synopses} synopses do not parse:\n{}",
+            "{} of the documented commands, synopses and commands in prose do not parse:\n{}",
             broken.len(),
             broken.join("\n")
         );
