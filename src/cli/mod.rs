@@ -159,9 +159,9 @@ mod doc_commands {
     //! Every `drape` command written out in the docs (README.md, ARCHITECTURE.md, docs/**/*.md
     //! in fenced shell blocks, docs/**/*.txt and scripts/*.sh line by line) parses with
     //! today's command line, and every usage synopsis and every command in running prose
-    //! (inline code, often partial: `drape sim --strain-png`) names a subcommand and options
-    //! that exist, so a renamed option or a new required argument cannot leave a
-    //! documented command broken.
+    //! (inline code, often partial: `drape sim --strain-png`) names subcommands that exist
+    //! and only options they take, so a renamed option or subcommand, or (in full commands)
+    //! a new required argument, cannot leave a documented command broken.
 
     use super::Cli;
     use clap::Parser;
@@ -286,7 +286,9 @@ mod doc_commands {
     }
 
     /// The subcommand a synopsis names and the options it writes (`--seed`, `-o`, each side
-    /// of `--a|--b`), each checked against the command line. Errors name what is unknown.
+    /// of `--a|--b`), each checked against the command line: a command group must be
+    /// followed by one of its subcommands, and every option must be one the subcommand
+    /// named (or the program globally) takes. Errors name what is unknown.
     fn check_synopsis(args: &[String]) -> Result<(), String> {
         use clap::CommandFactory;
         let root = Cli::command();
@@ -302,6 +304,14 @@ mod doc_commands {
                 }
                 None => break,
             }
+        }
+        // A command that takes only subcommands (`drape`, `drape garment`) must be followed
+        // by one of them, by nothing, or by `...` (any).
+        if let Some(next) = rest.first()
+            && cmd.is_subcommand_required_set()
+            && next != "..."
+        {
+            return Err(format!("`{}` has no subcommand {next}", path.join(" ")));
         }
         let known = |c: &clap::Command, opt: &str| {
             c.get_arguments().any(|a| match opt.strip_prefix("--") {
@@ -555,6 +565,15 @@ mod doc_commands {
             Err("`drape warp` has no option -q".to_string())
         );
         assert_eq!(synopsis("drape warp --garment jeans -o w.obj"), None);
+        assert_eq!(
+            syn("drape garment chek NAME [--samples 50]"),
+            Err("`drape garment` has no subcommand chek".to_string())
+        );
+        assert_eq!(
+            syn("drape simulate [--pose P]"),
+            Err("`drape` has no subcommand simulate".to_string())
+        );
+        assert_eq!(syn("drape ... [--assets DIR]"), Ok(()));
         let prose = "See `drape sim\n--png p.png` and `cargo run`.\n\n```sh\n`drape x`\n```\nthen `drape warp`";
         assert_eq!(
             inline_commands(prose),
