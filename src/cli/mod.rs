@@ -550,30 +550,36 @@ mod doc_commands {
         for (line, want) in cases {
             assert_eq!(args(line).as_deref(), want, "{line}");
         }
-        let syn = |l: &str| check_synopsis(&synopsis(l).expect("a synopsis"));
-        assert_eq!(
-            syn("drape garment check NAME [--samples 50 [--seed 0] | --corners] # note"),
-            Ok(())
-        );
-        assert_eq!(syn("drape data merge DIR... -o OUT [--assets A]"), Ok(()));
-        assert_eq!(
-            syn("drape garment check NAME [--sample 50]"),
-            Err("`drape garment check` has no option --sample".to_string())
-        );
-        assert_eq!(
-            syn("drape warp [--pose SPEC|-q]"),
-            Err("`drape warp` has no option -q".to_string())
-        );
         assert_eq!(synopsis("drape warp --garment jeans -o w.obj"), None);
-        assert_eq!(
-            syn("drape garment chek NAME [--samples 50]"),
-            Err("`drape garment` has no subcommand chek".to_string())
-        );
-        assert_eq!(
-            syn("drape simulate [--pose P]"),
-            Err("`drape` has no subcommand simulate".to_string())
-        );
-        assert_eq!(syn("drape ... [--assets DIR]"), Ok(()));
+        let no = |what: &str| Err(what.to_string());
+        let synopses = [
+            (
+                "drape garment check NAME [--samples 50 [--seed 0] | --corners] # note",
+                Ok(()),
+            ),
+            ("drape data merge DIR... -o OUT [--assets A]", Ok(())),
+            ("drape ... [--assets DIR]", Ok(())),
+            (
+                "drape garment check NAME [--sample 50]",
+                no("`drape garment check` has no option --sample"),
+            ),
+            (
+                "drape warp [--pose SPEC|-q]",
+                no("`drape warp` has no option -q"),
+            ),
+            (
+                "drape garment chek NAME [--samples 50]",
+                no("`drape garment` has no subcommand chek"),
+            ),
+            (
+                "drape simulate [--pose P]",
+                no("`drape` has no subcommand simulate"),
+            ),
+        ];
+        for (line, want) in synopses {
+            let args = synopsis(line).expect("a synopsis");
+            assert_eq!(check_synopsis(&args), want, "{line}");
+        }
         let prose = "See `drape sim\n--png p.png` and `cargo run`.\n\n```sh\n`drape x`\n```\nthen `drape warp`";
         assert_eq!(
             inline_commands(prose),
