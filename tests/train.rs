@@ -78,6 +78,36 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
     );
     let best = val.iter().cloned().fold(f64::MAX, f64::min);
     assert!(best < val[0], "validation Edist never improved: {val:?}");
+    // Standard error is not a terminal here, so it reads as a log: a line per epoch with
+    // the figures log.csv holds, and a last line with the whole count of batches.
+    let epoch_lines: Vec<&str> = text.lines().filter(|l| l.starts_with("epoch ")).collect();
+    assert_eq!(epoch_lines.len(), 8, "{text}");
+    for (k, (line, v)) in epoch_lines.iter().zip(&val).enumerate() {
+        let want = format!("epoch {}/8: training loss ", k + 1);
+        assert!(line.starts_with(&want), "{line}");
+        let logged: f64 = line
+            .split("validation loss ")
+            .nth(1)
+            .and_then(|r| r.split("Edist ").nth(1))
+            .and_then(|r| r.split(' ').next())
+            .and_then(|x| x.parse().ok())
+            .unwrap_or_else(|| panic!("no validation Edist in {line}"));
+        assert!((logged - v).abs() <= 0.005 + 1e-9, "{line} against {v}");
+    }
+    assert!(
+        epoch_lines[0].ends_with("(best so far)"),
+        "{}",
+        epoch_lines[0]
+    );
+    let steps = std::fs::read_to_string(run_dir.join("steps.csv"))
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
+    assert!(
+        text.contains(&format!("train: {steps}/{steps} batches (100%)")),
+        "{text}"
+    );
 
     // A finished run: the same command does nothing more.
     let steps_before = std::fs::read_to_string(run_dir.join("steps.csv")).unwrap();
@@ -586,6 +616,16 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         .map(|s| s.unwrap().row)
         .collect();
     assert_eq!(m["samples_evaluated"], test_rows.len());
+    // Standard error reads as a log: the last line of each pass has the whole count.
+    let n = test_rows.len();
+    let train_n = d.count(dataset::config::Split::Train);
+    for want in [
+        format!("eval: {train_n}/{train_n} samples (100%), training split"),
+        "eval: fitting the kernel baseline".to_string(),
+        format!("eval: {n}/{n} samples (100%), evaluating"),
+    ] {
+        assert!(text.contains(&want), "{want} not in {text}");
+    }
     let (preds, _) = net.predict_rows(&test_rows);
     let mean_edist = |xs: &mut dyn Iterator<Item = (&[glam::Vec3], &[glam::Vec3])>| {
         let v: Vec<f64> = xs.map(|(p, g)| eval::metrics::edist_cm(p, g)).collect();

@@ -217,6 +217,16 @@ fn progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
+/// Without a terminal (a log file), a line a minute for `bar` instead.
+fn log_lines(show: bool, bar: &indicatif::ProgressBar, what: &str) -> learn::run::LogLines {
+    learn::run::LogLines::when(
+        show && bar.is_hidden(),
+        what,
+        "samples",
+        std::time::Duration::from_secs(60),
+    )
+}
+
 /// The training split's mean displacement, the keys of its samples, the linear baseline's
 /// sums and the samples for the kernel baseline (one pass).
 type Summary = (Vec<Vec3>, Vec<Key>, linear::Accumulator, Vec<KernelRow>);
@@ -232,6 +242,7 @@ fn training_summary(data: &Dataset, show: bool) -> Result<Summary, EvalError> {
         data.count(Split::Train),
         "training split: mean, keys, linear",
     );
+    let lines = log_lines(show, &bar, "eval");
     for s in data.samples(Split::Train) {
         let s = s?;
         let disp = s.row.displacement();
@@ -248,8 +259,10 @@ fn training_summary(data: &Dataset, show: bool) -> Result<Summary, EvalError> {
             d: disp,
         });
         bar.inc(1);
+        lines.tick(&bar);
     }
     bar.finish_and_clear();
+    lines.finish(&bar);
     if keys.is_empty() {
         return Err(EvalError::Invalid(format!(
             "{} has no training samples: the baselines need them",
@@ -338,6 +351,9 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     // The kernel baseline's displacements of the evaluated samples, solved together.
     let (kernel_of, kernel, kernel_validation) = {
         let bar = progress(opts.progress, 1, "kernel baseline: fitting");
+        if log_lines(opts.progress, &bar, "eval").is_on() {
+            eprintln!("eval: fitting the kernel baseline");
+        }
         let refs: Vec<&KernelRow> = kernel_rows.iter().collect();
         let fit = Fit::new(&refs, &validation, None, &mut |m| {
             bar.set_message(format!("kernel baseline: {m}"))
@@ -399,6 +415,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     let mut samples = Vec::with_capacity(count);
     let mut network_seconds = 0.0;
     let bar = progress(opts.progress, count, "evaluating");
+    let lines = log_lines(opts.progress, &bar, "eval");
     let mut batch: Vec<Sample> = Vec::new();
     let mut flush = |batch: &mut Vec<Sample>,
                      samples: &mut Vec<SampleEval>|
@@ -496,6 +513,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
             }
             samples.push(eval);
             bar.inc(1);
+            lines.tick(&bar);
         }
         batch.clear();
         Ok(())
@@ -508,6 +526,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     }
     flush(&mut batch, &mut samples)?;
     bar.finish_and_clear();
+    lines.finish(&bar);
     let n = samples.len();
     Ok(Evaluation {
         samples,

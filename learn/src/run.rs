@@ -411,6 +411,9 @@ pub struct LogLines {
     every: std::time::Duration,
     /// When the work started and when the last line was written.
     clock: std::sync::Mutex<(std::time::Instant, std::time::Instant)>,
+    /// The bar's position when the work started (a resumed run's earlier steps), left out
+    /// of the rate.
+    from: std::sync::atomic::AtomicU64,
     on: bool,
 }
 
@@ -429,7 +432,29 @@ impl LogLines {
             unit: unit.to_string(),
             every,
             clock: std::sync::Mutex::new((now, now)),
+            from: std::sync::atomic::AtomicU64::new(0),
             on,
+        }
+    }
+
+    /// Whether lines are written (the bar draws nothing and progress was asked for).
+    pub fn is_on(&self) -> bool {
+        self.on
+    }
+
+    /// The work starts at `pos` (steps done before a resume): the rate counts from there.
+    pub fn starting_at(self, pos: u64) -> Self {
+        self.from.store(pos, std::sync::atomic::Ordering::Relaxed);
+        self
+    }
+
+    /// A line worth keeping (an epoch's figures, say): above the bar on a terminal, on
+    /// standard error in a log, nowhere when neither is shown.
+    pub fn note(&self, bar: &ProgressBar, text: &str) {
+        if self.on {
+            eprintln!("{text}");
+        } else {
+            bar.println(text);
         }
     }
 
@@ -474,6 +499,7 @@ impl LogLines {
         log_line(
             &self.what,
             &self.unit,
+            self.from.load(std::sync::atomic::Ordering::Relaxed),
             bar.position(),
             bar.length().unwrap_or(0),
             &bar.message(),
@@ -484,8 +510,16 @@ impl LogLines {
 
 /// `gen: 500/2483 drapes (20%), 0 failed, 10m 0s, 1.2 s each, about 39m 40s to go`; below
 /// one a second the rate is given as seconds each.  The share is rounded down, so 100% means
-/// done.
-pub fn log_line(what: &str, unit: &str, pos: u64, len: u64, msg: &str, seconds: f64) -> String {
+/// done. The rate counts from position `from` (where a resumed run started) at 0 seconds.
+pub fn log_line(
+    what: &str,
+    unit: &str,
+    from: u64,
+    pos: u64,
+    len: u64,
+    msg: &str,
+    seconds: f64,
+) -> String {
     let mut s = format!("{what}: {pos}/{len} {unit}");
     if let Some(share) = (100 * pos).checked_div(len) {
         s.push_str(&format!(" ({share}%)"));
@@ -494,8 +528,9 @@ pub fn log_line(what: &str, unit: &str, pos: u64, len: u64, msg: &str, seconds: 
         s.push_str(&format!(", {msg}"));
     }
     s.push_str(&format!(", {}", clock(seconds)));
-    if pos > 0 && seconds > 0.0 {
-        let rate = pos as f64 / seconds;
+    let done = pos.saturating_sub(from);
+    if done > 0 && seconds > 0.0 {
+        let rate = done as f64 / seconds;
         if rate >= 1.0 {
             s.push_str(&format!(", {rate:.1} {unit}/s"));
         } else {
@@ -528,26 +563,35 @@ mod tests {
     use super::*;
 
     /// The log line states position, share, message, elapsed time, rate and what is left,
-    /// and leaves out the rate and the rest where they cannot be known.
+    /// and leaves out the rate and the rest where they cannot be known; a resumed run's
+    /// rate counts only what this process did.
     #[test]
     fn log_lines_read_as_the_bar() {
         let cases = [
             (
-                ("gen", 500, 2000, "3 failed", 600.0),
+                ("gen", 0, 500, 2000, "3 failed", 600.0),
                 "gen: 500/2000 drapes (25%), 3 failed, 10m 0s, 1.2 s each, about 30m 0s to go",
             ),
             (
-                ("gen", 1990, 2000, "", 100.0),
+                ("gen", 0, 1990, 2000, "", 100.0),
                 "gen: 1990/2000 drapes (99%), 1m 40s, 19.9 drapes/s, about 1s to go",
             ),
-            (("check", 0, 50, "", 2.4), "check: 0/50 drapes (0%), 2s"),
+            (("check", 0, 0, 50, "", 2.4), "check: 0/50 drapes (0%), 2s"),
             (
-                ("gen", 40, 40, "", 7300.0),
+                ("gen", 0, 40, 40, "", 7300.0),
                 "gen: 40/40 drapes (100%), 2h 1m, 182.5 s each",
             ),
+            (
+                ("gen", 1500, 1600, 2000, "", 120.0),
+                "gen: 1600/2000 drapes (80%), 2m 0s, 1.2 s each, about 8m 0s to go",
+            ),
+            (
+                ("gen", 1500, 1500, 2000, "", 5.0),
+                "gen: 1500/2000 drapes (75%), 5s",
+            ),
         ];
-        for ((what, pos, len, msg, seconds), want) in cases {
-            assert_eq!(log_line(what, "drapes", pos, len, msg, seconds), want);
+        for ((what, from, pos, len, msg, seconds), want) in cases {
+            assert_eq!(log_line(what, "drapes", from, pos, len, msg, seconds), want);
         }
     }
 
@@ -570,6 +614,22 @@ mod tests {
         let minutely = LogLines::when(true, "gen", "drapes", std::time::Duration::from_secs(60));
         minutely.restart();
         assert!(!minutely.due());
+        // A resumed bar's earlier steps are left out of the rate.
+        let bar = ProgressBar::hidden();
+        bar.set_length(100);
+        bar.set_position(90);
+        let resumed =
+            LogLines::when(true, "train", "batches", std::time::Duration::ZERO).starting_at(90);
+        assert!(resumed.is_on());
+        assert!(
+            resumed
+                .line(&bar)
+                .starts_with("train: 90/100 batches (90%), ")
+        );
+        assert!(
+            !resumed.line(&bar).contains("to go"),
+            "nothing done yet: no rate"
+        );
     }
 
     /// A log with rows past the checkpoint: they are dropped before appending, the rest

@@ -810,6 +810,14 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             .sum::<usize>()
             + state.batch) as u64,
     );
+    // Without a terminal (a log file, `nohup`), a line a minute and one per epoch instead.
+    let lines = crate::run::LogLines::when(
+        opts.progress && bar.is_hidden(),
+        "train",
+        "batches",
+        std::time::Duration::from_secs(60),
+    )
+    .starting_at(bar.position());
     let workers = Workers::new(opts.workers, config.batch_size);
     let started = Instant::now();
     let seconds_before = state.seconds;
@@ -890,23 +898,34 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                     "epoch {} loss {:.3e} vert {:.2e} pen {:.2e} norm {:.3} bend {:.2e} Edist {:.2} cm",
                     state.epoch + 1, terms.total, terms.vert, terms.pen, terms.norm, terms.bend, terms.edist_cm
                 ));
+                lines.tick(&bar);
                 let out_of_time = cap > 0.0 && state.seconds - seconds_before >= cap;
                 if out_of_time || last_save.elapsed().as_secs_f64() > 600.0 {
                     crate::run::checkpoint(&opts.run, &model, &optim, &state)?;
                     last_save = Instant::now();
                 }
                 if out_of_time {
-                    bar.abandon_with_message(format!(
+                    let why = format!(
                         "wall-clock cap of {} min reached; run again to continue",
                         config.wall_clock_minutes
-                    ));
+                    );
+                    if lines.is_on() {
+                        lines.finish(&bar);
+                        eprintln!("train: {why}");
+                    }
+                    bar.abandon_with_message(why);
                     crate::run::end_bar_line(&bar);
                     return Ok(state);
                 }
             }
         }
+        let mut summary = format!("epoch {}/{}", state.epoch + 1, config.epochs);
         if seen > 0 {
             let sum = sum.mean_of(seen);
+            summary.push_str(&format!(
+                ": training loss {:.3e}, Edist {:.2} cm",
+                sum.total, sum.edist_cm
+            ));
             writeln!(
                 log,
                 "{},train,{},{:.2},{}",
@@ -928,7 +947,14 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                 v.csv()
             )
             .ok();
-            if state.best_val.is_none_or(|b| v.total < b) {
+            let best = state.best_val.is_none_or(|b| v.total < b);
+            summary.push_str(&format!(
+                "; validation loss {:.3e}, Edist {:.2} cm{}",
+                v.total,
+                v.edist_cm,
+                if best { " (best so far)" } else { "" }
+            ));
+            if best {
                 state.best_val = Some(v.total);
                 save_model(&model, &opts.run.join("best.bpk"))?;
             }
@@ -940,9 +966,11 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         state.finished = state.epoch >= config.epochs;
         crate::run::checkpoint(&opts.run, &model, &optim, &state)?;
         last_save = Instant::now();
+        lines.note(&bar, &summary);
     }
     bar.finish();
     crate::run::end_bar_line(&bar);
+    lines.finish(&bar);
     Ok(state)
 }
 
