@@ -409,15 +409,30 @@ mod doc_commands {
         })
     }
 
-    /// Lines of `text` that are commands: joined across trailing backslashes; in Markdown
+    /// Lines of `text` that are commands: joined across trailing backslashes, and an
+    /// indented line of bracketed options joined to the synopsis line above it; in Markdown
     /// only those inside fenced shell blocks (```sh, bash, shell, console).
     fn command_lines(text: &str, markdown: bool) -> Vec<(usize, String)> {
-        let mut out = Vec::new();
+        let mut out: Vec<(usize, String)> = Vec::new();
         let mut fenced = false;
         let mut shell = false;
         let mut pending: Option<(usize, String)> = None;
+        // The raw line the last command ended on.
+        let mut last_end = usize::MAX;
         for (n, raw) in text.lines().enumerate() {
             let t = raw.trim();
+            if pending.is_none()
+                && raw.starts_with(' ')
+                && t.starts_with('[')
+                && last_end.checked_add(1) == Some(n)
+                && let Some((_, prev)) = out.last_mut()
+                && synopsis(prev).is_some()
+            {
+                prev.push(' ');
+                prev.push_str(t);
+                last_end = n;
+                continue;
+            }
             if markdown && let Some(tag) = t.strip_prefix("```") {
                 fenced = !fenced;
                 shell = fenced && matches!(tag.trim(), "sh" | "bash" | "shell" | "console");
@@ -436,6 +451,7 @@ mod doc_commands {
             }
             joined.push_str(t);
             out.push((start, joined));
+            last_end = n;
         }
         out
     }
@@ -597,6 +613,22 @@ mod doc_commands {
             true,
         );
         assert_eq!(lines, vec![(3, "drape a --b 1".to_string())]);
+        // A synopsis's indented second line of options is part of it; an indented line
+        // after a command that is not a synopsis, or after a blank line, is not.
+        let lines = command_lines(
+            "```sh\ndrape a X [--b N]\n        [--c M]\n\n   [--d]\ndrape e\n   [--f]\n```\n",
+            true,
+        );
+        assert_eq!(
+            lines,
+            vec![
+                (2, "drape a X [--b N] [--c M]".to_string()),
+                (4, String::new()),
+                (5, "[--d]".to_string()),
+                (6, "drape e".to_string()),
+                (7, "[--f]".to_string()),
+            ]
+        );
     }
 
     #[test]
