@@ -108,6 +108,51 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         text.contains(&format!("train: {steps}/{steps} batches (100%)")),
         "{text}"
     );
+    // A run stopped by its wall-clock cap after a step or two says so; run again, it goes
+    // on from its checkpoint, numbering epochs on, to the uninterrupted run's figures.
+    let capped = tmp.path().join("run-capped");
+    let cap: &[&std::ffi::OsStr] = &["--wall-clock-minutes".as_ref(), "0.001".as_ref()];
+    let (ok, first) = train(&cfg, &data, &capped, cap);
+    assert!(ok, "{first}");
+    assert!(
+        first.contains("train: wall-clock cap of 0.001 min reached; run again to continue"),
+        "{first}"
+    );
+    let state: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(capped.join("state.json")).unwrap()).unwrap();
+    assert_eq!(state["finished"], false, "{state}");
+    let (stopped_epoch, stopped_batch) = (
+        state["epoch"].as_u64().unwrap(),
+        state["batch"].as_u64().unwrap(),
+    );
+    let (ok, second) = train(&cfg, &data, &capped, &[]);
+    assert!(ok, "{second}");
+    let resumed: Vec<&str> = second.lines().filter(|l| l.starts_with("epoch ")).collect();
+    assert_eq!(resumed.len() as u64, 8 - stopped_epoch, "{second}");
+    for (k, line) in resumed.iter().enumerate() {
+        let want = format!("epoch {}/8:", stopped_epoch + 1 + k as u64);
+        assert!(line.starts_with(&want), "{line}");
+    }
+    if stopped_batch > 0 {
+        assert!(
+            resumed[0].contains(&format!("resumed after batch {stopped_batch})"))
+                || resumed[0].contains("its training batches all ran before the resume"),
+            "{}",
+            resumed[0]
+        );
+    }
+    let val_of = |dir: &Path| -> Vec<String> {
+        std::fs::read_to_string(dir.join("log.csv"))
+            .unwrap()
+            .lines()
+            .filter(|l| l.split(',').nth(1) == Some("val"))
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                format!("{},{}", f[0], f[4..].join(","))
+            })
+            .collect()
+    };
+    assert_eq!(val_of(&capped), val_of(&run_dir));
 
     // A finished run: the same command does nothing more.
     let steps_before = std::fs::read_to_string(run_dir.join("steps.csv")).unwrap();

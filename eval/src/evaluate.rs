@@ -76,7 +76,8 @@ pub struct EvalOptions {
     pub batch: usize,
     /// Only the first `limit` samples of the split (all if `None`).
     pub limit: Option<usize>,
-    /// Show progress bars.
+    /// Show progress bars; without a terminal, plain lines instead
+    /// ([`learn::run::LogLines`]).
     pub progress: bool,
 }
 

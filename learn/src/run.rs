@@ -437,7 +437,8 @@ impl LogLines {
         }
     }
 
-    /// Whether lines are written (the bar draws nothing and progress was asked for).
+    /// Whether lines are written (as made: [`LogLines::new`] for a hidden bar, or `when`
+    /// with `on`).
     pub fn is_on(&self) -> bool {
         self.on
     }
@@ -448,8 +449,8 @@ impl LogLines {
         self
     }
 
-    /// A line worth keeping (an epoch's figures, say): above the bar on a terminal, on
-    /// standard error in a log, nowhere when neither is shown.
+    /// A line worth keeping (an epoch's figures, say): on standard error when lines are
+    /// on, else above the bar (which prints nothing for a hidden bar).
     pub fn note(&self, bar: &ProgressBar, text: &str) {
         if self.on {
             eprintln!("{text}");

@@ -518,7 +518,8 @@ pub struct TrainOptions {
     pub run: PathBuf,
     /// Initialise from this run's best checkpoint (fine-tuning).
     pub init: Option<PathBuf>,
-    /// Show a progress bar.
+    /// Show a progress bar (with a line per epoch above it); without a terminal, plain
+    /// lines instead ([`crate::run::LogLines`]).
     pub progress: bool,
     /// Gradient workers per step ([`Workers`]; 0: one per rayon thread).
     pub workers: usize,
@@ -841,6 +842,8 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
         let mut sum = Terms::default();
         let mut seen = 0usize;
         let mut batch_index = 0usize;
+        // Batches of this epoch run before a resume (their terms are not in `sum`).
+        let resumed_after = state.batch;
         for group in &groups[state.epoch] {
             let mut rows = Vec::new();
             for (i, f) in &group.shards {
@@ -926,6 +929,11 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                 ": training loss {:.3e}, Edist {:.2} cm",
                 sum.total, sum.edist_cm
             ));
+            if resumed_after > 0 {
+                summary.push_str(&format!(
+                    " (its last {seen} samples, resumed after batch {resumed_after})"
+                ));
+            }
             writeln!(
                 log,
                 "{},train,{},{:.2},{}",
@@ -935,6 +943,9 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
                 sum.csv()
             )
             .ok();
+        }
+        if seen == 0 {
+            summary.push_str(": its training batches all ran before the resume");
         }
         let val = evaluate(&setup, &model.valid(), &data, Split::Val)?;
         if let Some((v, n)) = val {

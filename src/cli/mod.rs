@@ -422,12 +422,17 @@ mod doc_commands {
         for (n, raw) in text.lines().enumerate() {
             let t = raw.trim();
             if pending.is_none()
-                && raw.starts_with(' ')
+                && raw.starts_with([' ', '\t'])
                 && t.starts_with('[')
                 && last_end.checked_add(1) == Some(n)
                 && let Some((_, prev)) = out.last_mut()
                 && synopsis(prev).is_some()
             {
+                // Options after a comment would not be read: the test cannot check them.
+                assert!(
+                    !prev.contains(" #"),
+                    "a synopsis continued after a comment: {prev}"
+                );
                 prev.push(' ');
                 prev.push_str(t);
                 last_end = n;
