@@ -352,11 +352,15 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     // The kernel baseline's displacements of the evaluated samples, solved together.
     let (kernel_of, kernel, kernel_validation) = {
         let bar = progress(opts.progress, 1, "kernel baseline: fitting");
-        if log_lines(opts.progress, &bar, "eval").is_on() {
+        let lines = log_lines(opts.progress, &bar, "eval");
+        if lines.is_on() {
             eprintln!("eval: fitting the kernel baseline");
         }
         let refs: Vec<&KernelRow> = kernel_rows.iter().collect();
         let fit = Fit::new(&refs, &validation, None, &mut |m| {
+            if lines.due() {
+                eprintln!("eval: kernel baseline: {m}");
+            }
             bar.set_message(format!("kernel baseline: {m}"))
         })
         .ok_or_else(|| {

@@ -466,8 +466,9 @@ impl LogLines {
         *self.clock.lock().unwrap_or_else(|e| e.into_inner()) = (now, now);
     }
 
-    /// Whether a line is due (and, if so, counts it as written).
-    fn due(&self) -> bool {
+    /// Whether a line is due (and, if so, counts it as written): for callers that write
+    /// their own line (a stage's message rather than the bar's count).
+    pub fn due(&self) -> bool {
         if !self.on {
             return false;
         }
