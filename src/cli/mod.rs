@@ -410,7 +410,8 @@ mod doc_commands {
     }
 
     /// Lines of `text` that are commands: joined across trailing backslashes, and an
-    /// indented line of bracketed options joined to the synopsis line above it; in Markdown
+    /// indented line of options (`[--a N]`, `-o FILE`) joined to the synopsis line above it;
+    /// in Markdown
     /// only those inside fenced shell blocks (```sh, bash, shell, console).
     fn command_lines(text: &str, markdown: bool) -> Vec<(usize, String)> {
         let mut out: Vec<(usize, String)> = Vec::new();
@@ -423,7 +424,7 @@ mod doc_commands {
             let t = raw.trim();
             if pending.is_none()
                 && raw.starts_with([' ', '\t'])
-                && t.starts_with('[')
+                && t.starts_with(['[', '-'])
                 && last_end.checked_add(1) == Some(n)
                 && let Some((_, prev)) = out.last_mut()
                 && synopsis(prev).is_some()
@@ -618,20 +619,20 @@ mod doc_commands {
             true,
         );
         assert_eq!(lines, vec![(3, "drape a --b 1".to_string())]);
-        // A synopsis's indented second line of options is part of it; an indented line
+        // A synopsis's indented lines of options are part of it; an indented line
         // after a command that is not a synopsis, or after a blank line, is not.
         let lines = command_lines(
-            "```sh\ndrape a X [--b N]\n        [--c M]\n\n   [--d]\ndrape e\n   [--f]\n```\n",
+            "```sh\ndrape a X [--b N]\n        [--c M]\n\t-o F\n\n   [--d]\ndrape e\n   [--f]\n```\n",
             true,
         );
         assert_eq!(
             lines,
             vec![
-                (2, "drape a X [--b N] [--c M]".to_string()),
-                (4, String::new()),
-                (5, "[--d]".to_string()),
-                (6, "drape e".to_string()),
-                (7, "[--f]".to_string()),
+                (2, "drape a X [--b N] [--c M] -o F".to_string()),
+                (5, String::new()),
+                (6, "[--d]".to_string()),
+                (7, "drape e".to_string()),
+                (8, "[--f]".to_string()),
             ]
         );
     }
