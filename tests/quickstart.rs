@@ -42,7 +42,19 @@ fn quickstart_drapes_with_both_and_the_weights_reproduce_their_reference() {
         edist > 0.0 && edist < dqs,
         "network {edist} cm, DQS {dqs} cm: {text}"
     );
-    assert!(figure(&text, "speed-up:") > 1.0, "{text}");
+    // The speed-up is the two printed times' ratio (their speed is the benchmarks' business,
+    // not a test's), within the rounding of the three printed figures.
+    let (sim_s, net_ms, speedup) = (
+        figure(&text, "simulator:"),
+        figure(&text, "network:"),
+        figure(&text, "speed-up:"),
+    );
+    assert!(sim_s > 0.0 && net_ms > 0.0, "{text}");
+    let ratio = sim_s / (net_ms * 1e-3);
+    assert!(
+        (speedup - ratio).abs() <= 0.5 + 0.03 * ratio,
+        "speed-up {speedup}x against {ratio:.1}x from the times: {text}"
+    );
 
     let reference = tmp.path().join("reference.json");
     let (ok, text) = run(drape().args(["quickstart", "--reference"]).arg(&reference));

@@ -218,16 +218,6 @@ fn progress(show: bool, len: usize, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
-/// Without a terminal (a log file), a line a minute for `bar` instead.
-fn log_lines(show: bool, bar: &indicatif::ProgressBar, what: &str) -> learn::run::LogLines {
-    learn::run::LogLines::when(
-        show && bar.is_hidden(),
-        what,
-        "samples",
-        std::time::Duration::from_secs(60),
-    )
-}
-
 /// The training split's mean displacement, the keys of its samples, the linear baseline's
 /// sums and the samples for the kernel baseline (one pass).
 type Summary = (Vec<Vec3>, Vec<Key>, linear::Accumulator, Vec<KernelRow>);
@@ -243,7 +233,7 @@ fn training_summary(data: &Dataset, show: bool) -> Result<Summary, EvalError> {
         data.count(Split::Train),
         "training split: mean, keys, linear",
     );
-    let lines = log_lines(show, &bar, "eval");
+    let lines = learn::run::LogLines::new(show, &bar, "eval", "samples");
     for s in data.samples(Split::Train) {
         let s = s?;
         let disp = s.row.displacement();
@@ -352,7 +342,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     // The kernel baseline's displacements of the evaluated samples, solved together.
     let (kernel_of, kernel, kernel_validation) = {
         let bar = progress(opts.progress, 1, "kernel baseline: fitting");
-        let lines = log_lines(opts.progress, &bar, "eval");
+        let lines = learn::run::LogLines::new(opts.progress, &bar, "eval", "samples");
         if lines.is_on() {
             eprintln!("eval: fitting the kernel baseline");
         }
@@ -420,7 +410,7 @@ pub fn evaluate(run: &Path, data: &Dataset, opts: &EvalOptions) -> Result<Evalua
     let mut samples = Vec::with_capacity(count);
     let mut network_seconds = 0.0;
     let bar = progress(opts.progress, count, "evaluating");
-    let lines = log_lines(opts.progress, &bar, "eval");
+    let lines = learn::run::LogLines::new(opts.progress, &bar, "eval", "samples");
     let mut batch: Vec<Sample> = Vec::new();
     let mut flush = |batch: &mut Vec<Sample>,
                      samples: &mut Vec<SampleEval>|

@@ -513,16 +513,42 @@ impl Clock {
     }
 }
 
-/// The verdict on the paper's 100x claim, run by run: `(key, vertices, speed-up over the
+/// The widths run `key` trained at, from its saved config (else the plan's) and the plan's
+/// `widths`: "the CPU widths", "the paper's widths" or "its config's widths" (neither
+/// preset); None when no config can be read.
+fn widths_of(plan: &Plan, out: &Path, key: &str) -> Option<&'static str> {
+    use learn::config::Widths;
+    let run = plan.runs.iter().find(|r| r.key == key)?;
+    let saved = out.join("runs").join(key).join("config.toml");
+    let c = learn::config::TrainConfig::load(&saved)
+        .or_else(|_| learn::config::TrainConfig::load(&run.config))
+        .ok()?;
+    let m = plan
+        .widths
+        .map_or(c.model.clone(), |w| c.model.with_widths(w));
+    Some(if m == m.with_widths(Widths::Cpu) {
+        "the CPU widths"
+    } else if m == m.with_widths(Widths::Paper) {
+        "the paper's widths"
+    } else {
+        "its config's widths"
+    })
+}
+
+/// One run's speed-up: `(key, vertices, the network's widths if known, speed-up over the
 /// full drape at batch 1, at the run's batch)`.
-fn speedup_verdict(each: &[(&str, usize, f64, Option<f64>)]) -> String {
-    let held = each.iter().filter(|e| e.2 >= 100.0).count();
+type RunSpeedup<'a> = (&'a str, usize, Option<&'a str>, f64, Option<f64>);
+
+/// The verdict on the paper's 100x claim, run by run.
+fn speedup_verdict(each: &[RunSpeedup<'_>]) -> String {
+    let held = each.iter().filter(|e| e.3 >= 100.0).count();
     let runs: Vec<String> = each
         .iter()
-        .map(|(key, vertices, one, many)| {
+        .map(|(key, vertices, widths, one, many)| {
             let batched = many.map_or(String::new(), |m| format!(", {m:.1}x batched"));
             let short = if *one < 100.0 { ", short of 100x" } else { "" };
-            format!("`{key}` {one:.1}x at {vertices} vertices{short}{batched}")
+            let widths = widths.map_or(String::new(), |w| format!(" and {w}"));
+            format!("`{key}` {one:.1}x at {vertices} vertices{widths}{short}{batched}")
         })
         .collect();
     let verdict = match held {
@@ -1396,14 +1422,32 @@ pub fn write_report(
         } else {
             String::new()
         };
+        // A comparison the means pass but the test drapes cannot resolve (the paired
+        // difference within two standard errors) is named a tie beside the verdict.
+        let ties: Vec<String> = [
+            ("tshirt-local", "tshirt-global", "Local", "Global"),
+            ("tshirt-global", "tshirt-naive", "Global", "Naive"),
+        ]
+        .iter()
+        .filter_map(|(a, b, na, nb)| {
+            let (m, se, n) = r.paired_edist_groups(&r.seeds(a), &r.seeds(b))?;
+            let over = if seeded { ", means over seeds" } else { "" };
+            (m.abs() <= 2.0 * se).then(|| {
+                format!("{na} and {nb} tie within two standard errors ({na} - {nb}{over} {m:+.3} ± {se:.3} cm, paired over {n} test drapes)")
+            })
+        })
+        .collect();
+        let ordering = match order {
+            Some(true) if !ties.is_empty() => format!("holds; {}", ties.join("; ")),
+            _ => verdict(order).to_string(),
+        };
         writeln!(
             w,
-            "| Local <= Global < Naive (Edist) | {}{} / {} / {} cm{over_seeds} | {} |",
+            "| Local <= Global < Naive (Edist) | {}{} / {} / {} cm{over_seeds} | {ordering} |",
             if seeded { "first seed " } else { "" },
             fmt(local, 2),
             fmt(global, 2),
             fmt(naive, 2),
-            verdict(order)
         )
         .unwrap();
         writeln!(
@@ -1674,13 +1718,14 @@ pub fn write_report(
         writeln!(w, "`drape bench speedup` on the run's test samples, in one process: the simulator with the config that made the dataset (PBS: the full drape from the template; PBS†: from the DQS warp with the body already posed) and the network (the DQS warp, the k-NN searches and both streams), at the same vertex count and thread count. Simulator times are means over the drapes that converged.\n").unwrap();
         writeln!(w, "| run | vertices | threads | PBS (s) | PBS† (s) | network, batch 1 (ms) | speed-up over PBS / PBS† | per drape at batch B (ms) | speed-up at batch B | GFLOPs |\n|---|---|---|---|---|---|---|---|---|---|").unwrap();
         // Each run's speed-up over the full drape at batch 1 and at its batch.
-        let mut each: Vec<(&str, usize, f64, Option<f64>)> = Vec::new();
+        let mut each: Vec<RunSpeedup<'_>> = Vec::new();
         for (key, s) in &r.speed {
             let (pbs, dagger, one) = (s.pbs(), s.pbs_dagger(), s.network_batch1());
             let many = s.batched_per_drape;
             let ok = |x: f64| Some(x).filter(|x| x.is_finite());
             if let Some(x) = ok(pbs / one) {
-                each.push((key.as_str(), s.vertices, x, ok(pbs / many)));
+                let widths = widths_of(plan, out, key);
+                each.push((key.as_str(), s.vertices, widths, x, ok(pbs / many)));
             }
             writeln!(
                 w,
@@ -1978,16 +2023,23 @@ mod tests {
     #[test]
     fn the_speedup_verdict_names_every_run_and_those_short_of_100x() {
         let v = speedup_verdict(&[
-            ("tshirt-local", 2967, 94.5, Some(121.3)),
-            ("tshirt-naive", 2967, 185.3, None),
+            (
+                "tshirt-local",
+                2967,
+                Some("the CPU widths"),
+                94.5,
+                Some(121.3),
+            ),
+            ("tshirt-naive", 2967, None, 185.3, None),
         ]);
         assert_eq!(
             v,
-            "The 100x claim, over the full simulated drape at batch 1 on this machine, holds for 1 of 2 runs: `tshirt-local` 94.5x at 2967 vertices, short of 100x, 121.3x batched; `tshirt-naive` 185.3x at 2967 vertices.\n"
+            "The 100x claim, over the full simulated drape at batch 1 on this machine, holds for 1 of 2 runs: `tshirt-local` 94.5x at 2967 vertices and the CPU widths, short of 100x, 121.3x batched; `tshirt-naive` 185.3x at 2967 vertices.\n"
         );
-        assert!(speedup_verdict(&[("a", 10, 150.0, None)]).contains("holds for every run"));
+        assert!(speedup_verdict(&[("a", 10, None, 150.0, None)]).contains("holds for every run"));
         assert!(
-            speedup_verdict(&[("a", 10, 50.0, None)]).contains("**does not hold** for any run")
+            speedup_verdict(&[("a", 10, None, 50.0, None)])
+                .contains("**does not hold** for any run")
         );
     }
 
@@ -2756,6 +2808,41 @@ samples = 1
         plan
     }
 
+    /// A run's widths in the speed-up verdict: from its saved config, the plan's `widths`
+    /// over it, and neither preset named as the config's own.
+    #[test]
+    fn the_widths_of_a_run_are_read_from_its_saved_config() {
+        let (dir, _) = scratch("widths");
+        let out = dir.path().join("out");
+        let mut plan = tshirt_plan("widths", None, "");
+        let saved = out.join("runs").join("tshirt-local");
+        std::fs::create_dir_all(&saved).unwrap();
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../configs/train/tshirt-local.toml"
+        ))
+        .unwrap();
+        std::fs::write(saved.join("config.toml"), &text).unwrap();
+        assert_eq!(
+            widths_of(&plan, &out, "tshirt-local"),
+            Some("the CPU widths")
+        );
+        plan.widths = Some(learn::config::Widths::Paper);
+        assert_eq!(
+            widths_of(&plan, &out, "tshirt-local"),
+            Some("the paper's widths")
+        );
+        plan.widths = None;
+        let own = text.replace("[model]\n", "[model]\nconv_width = 40\n");
+        assert_ne!(own, text);
+        std::fs::write(saved.join("config.toml"), own).unwrap();
+        assert_eq!(
+            widths_of(&plan, &out, "tshirt-local"),
+            Some("its config's widths")
+        );
+        assert_eq!(widths_of(&plan, &out, "no-such-run"), None);
+    }
+
     #[test]
     fn drapes_made_again_by_the_same_binary_pair_with_the_evaluations_on_the_earlier_ones() {
         let (dir, _) = scratch("again");
@@ -2948,5 +3035,17 @@ planned_hours = 0.1
         assert!(!md.contains("**Local <= Global.**"), "{md}");
         assert!(md.contains("**Global < Naive.** On the mean of 2 seeds of GarNet-Global and 1 seed of GarNet-Naive, GarNet-Global is not closer (Global - Naive, means over seeds +0.067 ± 0.017 cm, paired over 3 test drapes)."), "{md}");
         assert!(md.contains("A second seed moved GarNet-Global by 0.133 ± 0.033 cm (paired over the same drapes). A second seed of GarNet-Naive would tell how much of the gap here is seed scatter."), "{md}");
+
+        // The order holds on the means, but Local and Global are closer than the test
+        // drapes resolve: Local's seed means 2.1, 2.3, 2.1 against Global's 2.2, 2.25,
+        // 2.15, differences -0.1, +0.05, -0.05 cm.
+        put("tshirt-local-seed2", &[2.0, 2.3, 2.0]);
+        put("tshirt-naive", &[2.4, 2.5, 2.4]);
+        let md = report();
+        assert!(md.contains("mean over seeds 2.167 / 2.200 / 2.433 cm (2 / 2 / 1 seeds) | holds; Local and Global tie within two standard errors (Local - Global, means over seeds -0.033 ± 0.044 cm, paired over 3 test drapes) |"), "{md}");
+        // Clearly apart, the verdict stands alone.
+        put("tshirt-local-seed2", &[1.6, 1.7, 1.6]);
+        let md = report();
+        assert!(md.contains("(2 / 2 / 1 seeds) | holds |"), "{md}");
     }
 }

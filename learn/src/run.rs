@@ -418,10 +418,16 @@ pub struct LogLines {
 }
 
 impl LogLines {
-    /// Lines for `bar` when it draws nothing; `what` names the work ("gen"), `unit` counts it
-    /// ("drapes").
-    pub fn new(bar: &ProgressBar, what: &str, unit: &str, every: std::time::Duration) -> Self {
-        Self::when(bar.is_hidden(), what, unit, every)
+    /// A line a minute for a bar meant to be `shown` that draws nothing (standard error is
+    /// not a terminal); none when the bar was not meant to be shown. `what` names the work
+    /// ("gen"), `unit` counts it ("drapes").
+    pub fn new(shown: bool, bar: &ProgressBar, what: &str, unit: &str) -> Self {
+        Self::when(
+            shown && bar.is_hidden(),
+            what,
+            unit,
+            std::time::Duration::from_secs(60),
+        )
     }
 
     /// Lines if `on`, whatever the bar does (for bars drawn to a hidden target at first).
@@ -437,8 +443,8 @@ impl LogLines {
         }
     }
 
-    /// Whether lines are written (as made: [`LogLines::new`] for a hidden bar, or `when`
-    /// with `on`).
+    /// Whether lines are written (as made: [`LogLines::new`] for a bar meant to be shown
+    /// that draws nothing, or `when` with `on`).
     pub fn is_on(&self) -> bool {
         self.on
     }
@@ -609,9 +615,12 @@ mod tests {
             !hourly.due(),
             "the first line is due an hour after the start"
         );
-        // A bar drawn nowhere (as on a log file) asks for lines.
+        // A bar meant to be shown but drawn nowhere (as on a log file) asks for lines, a
+        // minute apart; a bar not meant to be shown asks for none.
         let bar = ProgressBar::hidden();
-        assert!(LogLines::new(&bar, "gen", "drapes", std::time::Duration::ZERO).due());
+        let logged = LogLines::new(true, &bar, "gen", "drapes");
+        assert!(logged.is_on() && !logged.due());
+        assert!(!LogLines::new(false, &bar, "gen", "drapes").is_on());
         // A restart counts as a line written: the next is due `every` later.
         let minutely = LogLines::when(true, "gen", "drapes", std::time::Duration::from_secs(60));
         minutely.restart();

@@ -812,13 +812,8 @@ pub fn train(config: &TrainConfig, opts: &TrainOptions) -> Result<State, LearnEr
             + state.batch) as u64,
     );
     // Without a terminal (a log file, `nohup`), a line a minute and one per epoch instead.
-    let lines = crate::run::LogLines::when(
-        opts.progress && bar.is_hidden(),
-        "train",
-        "batches",
-        std::time::Duration::from_secs(60),
-    )
-    .starting_at(bar.position());
+    let lines = crate::run::LogLines::new(opts.progress, &bar, "train", "batches")
+        .starting_at(bar.position());
     let workers = Workers::new(opts.workers, config.batch_size);
     let started = Instant::now();
     let seconds_before = state.seconds;
@@ -1066,4 +1061,62 @@ pub fn evaluate(
         return Ok(None);
     }
     Ok(Some((sum.mean_of(n), n)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The measured factors make the weighted curvature terms add up to the weighted
+    /// physics term times `physics_scale`, shared in the ratio of their configured weights
+    /// (the paper's 500 : 50 : 10 for L_RQ); a term that is off, or zero, keeps 1.
+    #[test]
+    fn curvature_scales_share_the_physics_budget_by_weight() {
+        let w = crate::config::LossWeights {
+            physics_scale: 0.5,
+            rq: [500.0, 50.0, 10.0],
+            mc: 0.0,
+            umc: 2.0,
+            ..Default::default()
+        };
+        let t = Terms {
+            vert: 4e-4,
+            pen: 1e-4,
+            norm: 3e-2,
+            bend: 2e-3,
+            rq: [1e-9, 4e-9, 2e-8],
+            mc: 7.0,
+            umc: 3e-6,
+            ..Default::default()
+        };
+        let s = CurvatureScales::measure(&t, &w);
+        let budget = 0.5 * t.physics(&w);
+        assert!(budget > 0.0);
+        let weighted = [
+            s.rq[0] * w.rq[0] * t.rq[0],
+            s.rq[1] * w.rq[1] * t.rq[1],
+            s.rq[2] * w.rq[2] * t.rq[2],
+            s.umc * w.umc * t.umc,
+        ];
+        let sum: f64 = weighted.iter().sum();
+        assert!((sum - budget).abs() < 1e-9 * budget, "{sum} vs {budget}");
+        for (k, share) in [500.0, 50.0, 10.0, 2.0].iter().enumerate() {
+            let want = budget * share / 562.0;
+            assert!(
+                (weighted[k] - want).abs() < 1e-9 * want,
+                "term {k}: {} vs {want}",
+                weighted[k]
+            );
+        }
+        assert_eq!(s.mc, 1.0, "L_MC is off");
+        let none = CurvatureScales::measure(
+            &Terms {
+                rq: [0.0; 3],
+                umc: 0.0,
+                ..t
+            },
+            &w,
+        );
+        assert_eq!(none, CurvatureScales::default());
+    }
 }

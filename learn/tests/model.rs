@@ -193,6 +193,23 @@ fn losses_are_zero_for_identical_meshes_and_match_hand_values() {
     assert!(value(loss::normal_loss(g.clone(), g.clone(), &lt)).abs() < 1e-9);
     assert!(value(loss::bending_loss(g.clone(), g.clone(), &lt)).abs() < 1e-6);
     assert!(value(loss::uniform_curvature_loss(g.clone(), g.clone(), &lt)).abs() < 1e-12);
+    // Lift the centre vertex by h: its Laplacian moves by -h in z; each of its six
+    // neighbours' by h over its own ring's size (the corners 0 and 8 on the diagonal have
+    // 3 neighbours, the edge midpoints 1, 3, 5, 7 have 4; 2 and 6 are not neighbours).
+    // L_UMC = (h^2 + 2 (h/3)^2 + 4 (h/4)^2) / 9 = 53 h^2 / 324.
+    assert_eq!(topo.rings[4], [0, 1, 3, 5, 7, 8]);
+    assert_eq!(topo.rings[0].len(), 3);
+    assert_eq!(topo.rings[1].len(), 4);
+    let h = 0.01;
+    let mut lifted = v.clone();
+    lifted[4][2] += h;
+    let got = value(loss::uniform_curvature_loss(
+        tensor(&lifted, &device),
+        g.clone(),
+        &lt,
+    ));
+    let want = 53.0 * (h as f64).powi(2) / 324.0;
+    assert!((got - want).abs() < 1e-4 * want, "{got} vs {want}");
     // Shift every vertex by 3 mm in z: L_vert = 9e-6 m^2; normals and distances unchanged.
     let shifted: Vec<[f32; 3]> = v.iter().map(|p| [p[0], p[1], p[2] + 0.003]).collect();
     let p = tensor(&shifted, &device);

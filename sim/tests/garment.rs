@@ -356,6 +356,36 @@ fn bad_user_garments_are_rejected_with_a_reason() {
         .for_each(|p| *p = c + (*p - c) * 0.8);
     let r = reason(import(small));
     assert!(r.contains("inside"), "{r}");
+    // One vertex deep inside the torso (over the 5 cm a distance query searches), and one
+    // pushed through it to behind the back, its edges across the torso, both ends outside.
+    let body = BodyCollider::new(
+        &model().shape(&Default::default()).unwrap().vertices,
+        &model().triangles,
+        0.01,
+    );
+    let front = (0..t.mesh.vertices.len())
+        .filter(|&i| t.mesh.vertices[i].x.abs() < 0.03)
+        .max_by(|&a, &b| t.mesh.vertices[a].z.total_cmp(&t.mesh.vertices[b].z))
+        .expect("a vertex at the front's midline");
+    let mut deep = t.mesh.clone();
+    let mut p = deep.vertices[front];
+    while !(body.inside(p) && body.signed_distance(p, 0.05).is_none()) {
+        p.z -= 0.01;
+        assert!(
+            p.z > -1.0,
+            "no point deeper than 5 cm behind the front vertex"
+        );
+    }
+    deep.vertices[front] = p;
+    let r = reason(import(deep));
+    assert!(r.contains("1 vertices lie inside"), "{r}");
+    let mut across = t.mesh.clone();
+    while body.inside(p) || body.signed_distance(p, 0.05).is_some_and(|d| d < 0.02) {
+        p.z -= 0.01;
+    }
+    across.vertices[front] = p;
+    let r = reason(import(across));
+    assert!(r.contains("edges pass through the canonical body"), "{r}");
     // Far from the body.
     let mut away = t.mesh.clone();
     away.vertices.iter_mut().for_each(|p| p.z += 1.0);

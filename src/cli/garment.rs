@@ -821,8 +821,7 @@ fn check(
     );
     bar.set_prefix("check");
     // Without a terminal (a log file), a line a minute instead of the bar.
-    let lines =
-        learn::run::LogLines::new(&bar, "check", "drapes", std::time::Duration::from_secs(60));
+    let lines = learn::run::LogLines::new(true, &bar, "check", "drapes");
     let t0 = std::time::Instant::now();
     // Each row, and (but for warps only) every edge's strain in that drape.
     let rows: Vec<anyhow::Result<(serde_json::Value, Vec<f32>)>> = cases

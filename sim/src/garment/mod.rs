@@ -712,7 +712,7 @@ fn store(t: &Template, path: &Path) -> Result<(), GarmentError> {
 
 /// Checks a user's garment mesh on the canonical body and skins it: manifold edges, no
 /// degenerate faces, a plausible size (0.1 to 2.5 m across), placed around the body, no
-/// vertex inside the body. `path` names it in errors.
+/// vertex inside the body at any depth and no edge through it. `path` names it in errors.
 pub fn import_mesh(
     mesh: TriMesh,
     name: &str,
@@ -738,14 +738,36 @@ pub fn import_mesh(
     let collider = BodyCollider::new(&canonical.vertices, &canonical.model.triangles, 0.01);
     crate::cloth::drape::check_placement(&collider, &mesh.vertices)
         .map_err(|e| reject(e.to_string()))?;
+    // Inside at any depth: near the surface by signed distance, deeper by ray parity.
     let inside = mesh
         .vertices
         .iter()
-        .filter(|p| collider.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0))
+        .filter(|p| {
+            collider.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0) || collider.inside(**p)
+        })
         .count();
     if inside > 0 {
         return Err(reject(format!(
             "{inside} vertices lie inside the canonical body in its rest pose; the template must be outside it"
+        )));
+    }
+    // Cloth across a limb or the torso: both ends of an edge outside, a point along it
+    // inside, more than 1 mm deep (the simulator's verification of a drape, the same test).
+    let mut edges: Vec<[u32; 2]> = mesh
+        .triangles
+        .iter()
+        .flat_map(|t| [[t[0], t[1]], [t[1], t[2]], [t[2], t[0]]])
+        .map(|[a, b]| [a.min(b), a.max(b)])
+        .collect();
+    edges.sort_unstable();
+    edges.dedup();
+    let through =
+        crate::cloth::drape::edges_through_body(&collider, &edges, &mesh.vertices, 0.001, true);
+    if let Some(deepest) = through.iter().map(|e| e.depth).reduce(f32::max) {
+        return Err(reject(format!(
+            "{} edges pass through the canonical body in its rest pose (a point {:.1} mm or more inside); the template must be outside it",
+            through.len(),
+            deepest * 1e3
         )));
     }
     let (mesh, skin, bindings) = skin_mesh(mesh, canonical, &[], None);

@@ -1885,11 +1885,14 @@ mod tests {
         assert!(remesh(&square(), &tiny).is_err());
     }
 
-    /// Timing of the two reference jobs; figures printed (run with --nocapture), not
-    /// asserted. Ignored in unoptimised builds, where it would be slow.
+    /// The two reference jobs, remeshed to 1 cm edges: manifold, well-shaped (at most 1%
+    /// of triangles under 20 degrees, none degenerate), and about as many triangles as
+    /// equilateral ones of 1 cm side tile their area (4.33e-5 m^2 each). The time is
+    /// printed (run with --nocapture), not asserted. Ignored in unoptimised builds, where
+    /// it would be slow.
     #[test]
-    #[cfg_attr(debug_assertions, ignore = "timing: run in release")]
-    fn remeshing_timing() {
+    #[cfg_attr(debug_assertions, ignore = "slow unoptimised: run in release")]
+    fn reference_jobs_remesh_to_well_shaped_triangles_of_the_target_size() {
         let opts = RemeshOptions {
             target_edge: 0.01,
             iterations: 10,
@@ -1909,12 +1912,32 @@ mod tests {
             let t = std::time::Instant::now();
             let out = remesh(&input, &opts).unwrap();
             let dt = t.elapsed();
+            let stats = angle_stats(&out);
             println!(
-                "{name} -> L = 1 cm: {} vertices, {} triangles in {:.3} s; {:?}",
+                "{name} -> L = 1 cm: {} vertices, {} triangles in {:.3} s; {stats:?}",
                 out.vertices.len(),
                 out.triangles.len(),
                 dt.as_secs_f64(),
-                angle_stats(&out)
+            );
+            assert_manifold(&out);
+            assert!(
+                stats.share_below_20 <= 0.01 && stats.degenerate == 0,
+                "{name}: {stats:?}"
+            );
+            let area: f32 = input
+                .triangles
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| input.vertices[i as usize]);
+                    0.5 * (b - a).cross(c - a).length()
+                })
+                .sum();
+            let ideal = area / (3f32.sqrt() / 4.0 * 1e-4);
+            let ratio = out.triangles.len() as f32 / ideal;
+            assert!(
+                (0.85..1.15).contains(&ratio),
+                "{name}: {} triangles, {ideal:.0} equilateral ones of 1 cm tile its {area:.3} m^2",
+                out.triangles.len()
             );
         }
     }
