@@ -548,13 +548,12 @@ fn garments_build_once_warp_and_drape_by_name() {
     };
     let ((tv, tf), (wv, wf)) = (obj(&t_obj), obj(&w_obj));
     assert_eq!(tf, wf, "the warp keeps the template's faces");
-    let mut edges: Vec<(usize, usize)> = tf
+    // Each undirected edge once, as a set of sorted pairs.
+    let edges: std::collections::BTreeSet<(usize, usize)> = tf
         .iter()
-        .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
-        .map(|(a, b)| (a.min(b), a.max(b)))
+        .flat_map(|f| (0..3).map(move |k| (f[k], f[(k + 1) % 3])))
+        .map(|(a, b)| if a < b { (a, b) } else { (b, a) })
         .collect();
-    edges.sort_unstable();
-    edges.dedup();
     let len = |v: &[[f64; 3]], (a, b): (usize, usize)| {
         (0..3)
             .map(|k| (v[a][k] - v[b][k]).powi(2))

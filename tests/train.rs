@@ -690,7 +690,69 @@ fn train_writes_a_run_learns_resumes_and_refuses_bad_input() {
         "{} vs {netd}",
         got("network")
     );
-    assert!(got("mean-residual") > 0.0 && got("nearest-neighbour") > 0.0);
+    // The two simple baselines, computed here from the training rows: M plus the training
+    // split's mean displacement, and M plus the displacement of the training sample
+    // nearest in shape and pose.
+    let train_rows: Vec<dataset::shard::Row> = d
+        .samples(dataset::config::Split::Train)
+        .map(|s| s.unwrap().row)
+        .collect();
+    let nv = test_rows[0].warped.len();
+    let mut mean_disp = vec![glam::DVec3::ZERO; nv];
+    for r in &train_rows {
+        for (k, (g, m)) in r.draped.iter().zip(&r.warped).enumerate() {
+            mean_disp[k] += (*g - *m).as_dvec3() / train_rows.len() as f64;
+        }
+    }
+    let residual: Vec<Vec<glam::Vec3>> = test_rows
+        .iter()
+        .map(|r| {
+            r.warped
+                .iter()
+                .zip(&mean_disp)
+                .map(|(m, d)| *m + d.as_vec3())
+                .collect()
+        })
+        .collect();
+    let key = |r: &dataset::shard::Row| eval::evaluate::Key {
+        id: r.id,
+        shape: r.shape,
+        pose: r.pose.clone(),
+    };
+    let neighbour: Vec<Vec<glam::Vec3>> = test_rows
+        .iter()
+        .map(|r| {
+            let j = train_rows
+                .iter()
+                .min_by(|a, b| {
+                    let da = eval::evaluate::pose_shape_distance(&key(r), &key(a));
+                    let db = eval::evaluate::pose_shape_distance(&key(r), &key(b));
+                    da.total_cmp(&db)
+                })
+                .unwrap();
+            r.warped
+                .iter()
+                .zip(j.draped.iter().zip(&j.warped))
+                .map(|(m, (g, mj))| *m + (*g - *mj))
+                .collect()
+        })
+        .collect();
+    for (method, garments) in [
+        ("mean-residual", &residual),
+        ("nearest-neighbour", &neighbour),
+    ] {
+        let mine = mean_edist(
+            &mut garments
+                .iter()
+                .zip(&test_rows)
+                .map(|(p, r)| (&p[..], &r.draped[..])),
+        );
+        assert!(
+            (got(method) - mine).abs() < 1e-3,
+            "{method}: {} vs {mine}",
+            got(method)
+        );
+    }
     // The linear baseline: finite, and its strength one of those tried on validation.
     assert!(got("linear").is_finite() && got("linear") > 0.0);
     let lambda = m["linear_lambda"].as_f64().unwrap();

@@ -742,8 +742,9 @@ pub fn import_mesh(
     let inside = mesh
         .vertices
         .iter()
-        .filter(|p| {
-            collider.signed_distance(**p, 0.05).is_some_and(|d| d < 0.0) || collider.inside(**p)
+        .filter(|p| match collider.signed_distance(**p, 0.05) {
+            Some(d) => d < 0.0,
+            None => collider.inside(**p),
         })
         .count();
     if inside > 0 {
@@ -751,8 +752,9 @@ pub fn import_mesh(
             "{inside} vertices lie inside the canonical body in its rest pose; the template must be outside it"
         )));
     }
-    // Cloth across a limb or the torso: both ends of an edge outside, a point along it
-    // inside, more than 1 mm deep (the simulator's verification of a drape, the same test).
+    // Cloth across a limb or the torso: both ends of an edge outside, its point at a
+    // quarter, half or three quarters inside, more than 1 mm deep (the simulator's
+    // verification of a drape, the same test).
     let mut edges: Vec<[u32; 2]> = mesh
         .triangles
         .iter()
