@@ -513,23 +513,26 @@ impl Clock {
     }
 }
 
-/// The widths run `key` trained at, from its saved config (else the plan's config under the
-/// plan's `widths`): "the CPU widths", "the paper's widths" or "its config's widths"
-/// (neither preset); None when no config can be read.
+/// The config run `run` trains with: the run folder's copy under `out` once it has started
+/// (what it trained with, the plan's `widths` applied), else the plan's config under the
+/// plan's `widths`; None when neither can be read.
+fn run_config(plan: &Plan, out: &Path, run: &PlanRun) -> Option<learn::config::TrainConfig> {
+    let saved = out.join("runs").join(&run.key).join("config.toml");
+    learn::config::TrainConfig::load(&saved).ok().or_else(|| {
+        let mut c = learn::config::TrainConfig::load(&run.config).ok()?;
+        if let Some(w) = plan.widths {
+            c.model = c.model.with_widths(w);
+        }
+        Some(c)
+    })
+}
+
+/// The widths run `key` trained at ([`run_config`]): "the CPU widths", "the paper's
+/// widths" or "its config's widths" (neither preset); None when no config can be read.
 fn widths_of(plan: &Plan, out: &Path, key: &str) -> Option<&'static str> {
     use learn::config::Widths;
     let run = plan.runs.iter().find(|r| r.key == key)?;
-    // The saved config records the widths the run trained at; the plan's `widths` apply
-    // only over the plan's config, before the run has saved one.
-    let saved = out.join("runs").join(key).join("config.toml");
-    let m = match learn::config::TrainConfig::load(&saved) {
-        Ok(c) => c.model,
-        Err(_) => {
-            let c = learn::config::TrainConfig::load(&run.config).ok()?;
-            plan.widths
-                .map_or(c.model.clone(), |w| c.model.with_widths(w))
-        }
-    };
+    let m = run_config(plan, out, run)?.model;
     Some(if m == m.with_widths(Widths::Cpu) {
         "the CPU widths"
     } else if m == m.with_widths(Widths::Paper) {
@@ -1930,11 +1933,8 @@ pub fn write_report(
         let st = learn::train::State::load(&out.join("runs").join(&run.key))
             .ok()
             .flatten();
-        // The run folder's copy of its config (what it trained with), else the plan's.
-        let saved = out.join("runs").join(&run.key).join("config.toml");
-        let epsilon = learn::config::TrainConfig::load(&saved)
-            .or_else(|_| learn::config::TrainConfig::load(&run.config))
-            .map_or("–".into(), |c| format!("{:e}", c.adam_epsilon));
+        let epsilon =
+            run_config(plan, out, run).map_or("–".into(), |c| format!("{:e}", c.adam_epsilon));
         writeln!(
             w,
             "| {} | `{}`{} | {} | {} | {} | {epsilon} |",

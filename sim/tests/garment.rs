@@ -113,16 +113,9 @@ fn the_top_opening_is_the_neckline_or_the_waistband() {
     }
 }
 
-/// Vertices inside the body at any depth: by signed distance within 5 cm of its surface,
-/// by ray parity deeper.
+/// Vertices inside the body at any depth, as the simulator's verification counts them.
 fn inside_count(body: &BodyCollider, vertices: &[Vec3]) -> usize {
-    vertices
-        .iter()
-        .filter(|p| match body.signed_distance(**p, 0.05) {
-            Some(d) => d < 0.0,
-            None => body.inside(**p),
-        })
-        .count()
+    sim::cloth::drape::penetration(body, vertices).count
 }
 
 #[test]

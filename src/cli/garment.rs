@@ -641,20 +641,12 @@ pub fn warp(args: WarpArgs, ctx: &Context) -> anyhow::Result<()> {
 /// Share of edges longer than `1 + limit` times their template length, among the edges
 /// whose both ends pass `keep`.
 fn overstretched(t: &Template, x: &[glam::Vec3], limit: f32, keep: &dyn Fn(u32) -> bool) -> f32 {
-    let mut edges: Vec<(u32, u32)> = t
-        .mesh
-        .triangles
-        .iter()
-        .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
-        .map(|(a, b)| (a.min(b), a.max(b)))
-        .collect();
-    edges.sort_unstable();
-    edges.dedup();
-    edges.retain(|&(a, b)| keep(a) && keep(b));
+    let mut edges = t.mesh.edges();
+    edges.retain(|&[a, b]| keep(a) && keep(b));
     let v = &t.mesh.vertices;
     let over = edges
         .iter()
-        .filter(|&&(a, b)| {
+        .filter(|&&[a, b]| {
             let l0 = v[a as usize].distance(v[b as usize]);
             x[a as usize].distance(x[b as usize]) > (1.0 + limit) * l0
         })

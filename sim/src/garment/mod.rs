@@ -738,15 +738,8 @@ pub fn import_mesh(
     let collider = BodyCollider::new(&canonical.vertices, &canonical.model.triangles, 0.01);
     crate::cloth::drape::check_placement(&collider, &mesh.vertices)
         .map_err(|e| reject(e.to_string()))?;
-    // Inside at any depth: near the surface by signed distance, deeper by ray parity.
-    let inside = mesh
-        .vertices
-        .iter()
-        .filter(|p| match collider.signed_distance(**p, 0.05) {
-            Some(d) => d < 0.0,
-            None => collider.inside(**p),
-        })
-        .count();
+    // Inside at any depth, as the simulator's verification counts it.
+    let inside = crate::cloth::drape::penetration(&collider, &mesh.vertices).count;
     if inside > 0 {
         return Err(reject(format!(
             "{inside} vertices lie inside the canonical body in its rest pose; the template must be outside it"
@@ -756,17 +749,14 @@ pub fn import_mesh(
     // quarter, half or three quarters inside deeper than the simulator lets a drape's
     // edge go (`max_edge_penetration`, 5 mm). A shallower chord is what a coarse mesh
     // lying on the body's curves makes (1.7 mm on the 800-vertex dress), not a crossing.
-    let mut edges: Vec<[u32; 2]> = mesh
-        .triangles
-        .iter()
-        .flat_map(|t| [[t[0], t[1]], [t[1], t[2]], [t[2], t[0]]])
-        .map(|[a, b]| [a.min(b), a.max(b)])
-        .collect();
-    edges.sort_unstable();
-    edges.dedup();
     let limit = SimConfig::default().max_edge_penetration;
-    let through =
-        crate::cloth::drape::edges_through_body(&collider, &edges, &mesh.vertices, limit, true);
+    let through = crate::cloth::drape::edges_through_body(
+        &collider,
+        &mesh.edges(),
+        &mesh.vertices,
+        limit,
+        true,
+    );
     if let Some(deepest) = through.iter().map(|e| e.depth).reduce(f32::max) {
         return Err(reject(format!(
             "{} edges pass through the canonical body in its rest pose (the deepest {:.1} mm inside); the template must be outside it",

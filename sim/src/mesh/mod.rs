@@ -28,6 +28,19 @@ pub struct TriMesh {
 }
 
 impl TriMesh {
+    /// Every edge of the triangles once, as `[i, j]` with `i < j`, in ascending order.
+    pub fn edges(&self) -> Vec<[u32; 2]> {
+        let mut edges: Vec<[u32; 2]> = self
+            .triangles
+            .iter()
+            .flat_map(|t| [[t[0], t[1]], [t[1], t[2]], [t[2], t[0]]])
+            .map(|[a, b]| [a.min(b), a.max(b)])
+            .collect();
+        edges.sort_unstable();
+        edges.dedup();
+        edges
+    }
+
     /// Mean length of the triangles' sides (m; an edge between two triangles counts
     /// twice), at least 0.1 mm: the step that neighbour averaging spreads a value by.
     pub fn mean_side(&self) -> f32 {
